@@ -1,0 +1,135 @@
+#!/usr/bin/env python
+"""Benchmarks. Each sub-command prints a table and writes ``bench-<name>.json``.
+
+    python scripts/bench.py gp      # cost of one add + one predict per GP (exact, sparse, naive)
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from trl_dgpq.gp import ExactGP, RBFKernel, SparseOnlineGP  # noqa: E402
+
+LS, NOISE, DIM = 0.05, 0.1, 2
+
+
+def timeit(fn, min_time=0.3, min_reps=3, max_reps=200):
+    """Mean seconds per call, after one warm-up call."""
+    fn()
+    reps, start = 0, time.perf_counter()
+    while reps < min_reps or (time.perf_counter() - start < min_time and reps < max_reps):
+        fn()
+        reps += 1
+    return (time.perf_counter() - start) / reps
+
+
+def naive_add_predict(X, y, x_new, y_new, xq):
+    """What the public reproduction does per step: append, then rebuild and invert
+    (K + noise I) from scratch for the query (numpy, O(n^3))."""
+    X.append(x_new)
+    y.append(y_new)
+    A = np.asarray(X)
+    d2 = ((A[:, None, :] - A[None, :, :]) ** 2).sum(-1)
+    K = np.exp(-d2 / (2 * LS ** 2)) + NOISE * np.eye(len(A))
+    Kinv = np.linalg.inv(K)
+    k = np.exp(-((A - xq) ** 2).sum(-1) / (2 * LS ** 2))
+    mean = k @ Kinv @ np.asarray(y)
+    var = 1.0 - k @ Kinv @ k
+    X.pop()
+    y.pop()  # keep n fixed across repetitions
+    return mean, var
+
+
+def bench_gp(args):
+    ns = (200, 1000) if args.quick else (200, 1000, 2000, 5000)
+    batches = (1, 64)
+    gen = torch.Generator().manual_seed(0)
+    rnd = lambda *s: torch.rand(*s, generator=gen, dtype=torch.float64)  # noqa: E731
+    results = []
+
+    def record(backend, B, n, sec_per_call):
+        us = sec_per_call / B * 1e6
+        results.append(dict(backend=backend, batch=B, n=n, us_per_add_predict=round(us, 2)))
+        print(f"{backend:>7} {B:>6} {n:>6} {us:>14.1f}", flush=True)
+
+    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, {platform.processor() or platform.machine()}")
+    print(f"{'backend':>7} {'batch':>6} {'n':>6} {'us/add+predict':>14}  (per GP)")
+    for B in batches:
+        k = RBFKernel(LS, 1.0)
+        # Sparse: feed the stream and time at each n (cost should be flat in n).
+        sp = SparseOnlineGP(k, NOISE, DIM, batch_shape=(B,), budget=args.budget, novelty_tol=1e-3)
+        seen = 0
+        for n in ns:
+            while seen < n:
+                sp.add(rnd(B, DIM), rnd(B))
+                seen += 1
+            record("sparse", B, n, timeit(lambda: (sp.add(rnd(B, DIM), rnd(B)), sp.predict(rnd(B, 1, DIM)))))
+        for n in ns:
+            need_gb = B * (n + 64) ** 2 * 8 * 3 / 1e9
+            if need_gb > args.max_gb:
+                print(f"{'exact':>7} {B:>6} {n:>6}  skipped: needs ~{need_gb:.0f} GB (> --max-gb {args.max_gb})")
+                continue
+            ex = ExactGP(k, NOISE, DIM, batch_shape=(B,), capacity=n + 64)
+            ex.set_data(rnd(B, n, DIM), rnd(B, n))
+
+            def step():
+                if int(ex.n.max()) >= n + 63:  # stay at ~n points and within capacity
+                    ex.n -= 32
+                    ex.L[:, n:, :] = 0
+                    ex.L[:, :, n:] = 0
+                    ex.L.diagonal(dim1=-2, dim2=-1)[:, n:] = 1
+                ex.add(rnd(B, DIM), rnd(B))
+                ex.predict(rnd(B, 1, DIM))
+            record("exact", B, n, timeit(step, min_reps=3, max_reps=30))
+            del ex
+        if B == 1:
+            for n in ns:
+                X = [x for x in rnd(n, DIM).numpy()]
+                y = list(rnd(n).numpy())
+                record("naive", B, n, timeit(lambda: naive_add_predict(X, y, rnd(DIM).numpy(), 0.5, rnd(DIM).numpy()),
+                                              min_time=0.5, min_reps=1, max_reps=10))
+    out = Path(args.out or "bench-gp.json")
+    meta = dict(torch=torch.__version__, threads=torch.get_num_threads(), budget=args.budget,
+                lengthscale=LS, noise_var=NOISE, dim=DIM)
+    out.write_text(json.dumps(dict(meta=meta, results=results), indent=1))
+    summarise_gp(results)
+    print(f"wrote {out}")
+
+
+def summarise_gp(results):
+    get = {(r["backend"], r["batch"], r["n"]): r["us_per_add_predict"] for r in results}
+    ns = sorted({r["n"] for r in results})
+    if ("naive", 1, 2000) in get and ("exact", 1, 2000) in get:
+        print(f"exact vs naive at n=2000 (single GP): {get[('naive', 1, 2000)] / get[('exact', 1, 2000)]:.0f}x faster")
+    for B in (1, 64):
+        if ("sparse", B, ns[0]) in get:
+            print(f"sparse batch {B}: n={ns[-1]} / n={ns[0]} = "
+                  f"{get[('sparse', B, ns[-1])] / get[('sparse', B, ns[0])]:.2f}x, "
+                  f"max {max(get[('sparse', B, n)] for n in ns):.1f} us per GP")
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="what", required=True)
+    g = sub.add_parser("gp", help="GP add+predict cost per GP vs points seen")
+    g.add_argument("--quick", action="store_true", help="n = 200, 1000 only")
+    g.add_argument("--budget", type=int, default=100)
+    g.add_argument("--max-gb", type=float, default=8.0, help="skip exact cases needing more memory")
+    g.add_argument("--out", default=None)
+    g.set_defaults(fn=bench_gp)
+    args = p.parse_args(argv)
+    torch.set_num_threads(torch.get_num_threads())
+    args.fn(args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,198 @@
+import numpy as np
+import pytest
+import torch
+from sklearn.gaussian_process import GaussianProcessRegressor
+from sklearn.gaussian_process.kernels import RBF, ConstantKernel
+
+from trl_dgpq.gp import ExactGP, GPNumericalError, RBFKernel, SparseOnlineGP
+
+LS, OS, NOISE = 0.3, 1.5, 0.1
+D = torch.float64
+
+
+def sklearn_predict(X, y, Xq, noise=NOISE):
+    sk = GaussianProcessRegressor(ConstantKernel(OS, "fixed") * RBF(LS, "fixed"),
+                                  alpha=noise, optimizer=None).fit(X, y)
+    m, s = sk.predict(Xq, return_std=True)
+    return m, s ** 2
+
+
+def stream(batch, npts, seed=0, dim=2):
+    g = torch.Generator().manual_seed(seed)
+    X = torch.rand(npts, *batch, dim, generator=g, dtype=D)
+    y = torch.sin(6 * X.sum(-1)) + 0.1 * torch.randn(npts, *batch, generator=g, dtype=D)
+    masks = torch.rand(npts, *batch, generator=g) < 0.6
+    Xq = torch.rand(*batch, 9, dim, generator=g, dtype=D)
+    return X, y, masks, Xq
+
+
+def per_gp_data(X, y, masks, idx):
+    """The points GP ``idx`` actually received."""
+    sel = masks[(slice(None), *idx)]
+    return X[(slice(None), *idx)][sel].numpy(), y[(slice(None), *idx)][sel].numpy()
+
+
+@pytest.mark.parametrize("batch", [(), (3, 4)])
+def test_exact_matches_sklearn(batch):
+    X, y, masks, Xq = stream(batch, 40)
+    gp = ExactGP(RBFKernel(LS, OS), NOISE, dim=2, batch_shape=batch, capacity=16)  # forces growth
+    for t in range(40):
+        gp.add(X[t], y[t], mask=masks[t] if batch else None)
+    mean, var = gp.predict(Xq)
+    for idx in np.ndindex(*batch):
+        Xi, yi = per_gp_data(X, y, masks if batch else torch.ones(40, dtype=bool), idx)
+        ms, vs = sklearn_predict(Xi, yi, Xq[idx].numpy())
+        np.testing.assert_allclose(mean[idx].numpy(), ms, atol=1e-8, rtol=0)
+        np.testing.assert_allclose(var[idx].numpy(), vs, atol=1e-8, rtol=0)
+        assert gp.size[idx] == len(yi)
+
+
+def test_exact_set_data_equals_incremental():
+    X, y, _, Xq = stream((2,), 25)
+    a = ExactGP(RBFKernel(LS, OS), NOISE, 2, batch_shape=(2,))
+    b = ExactGP(RBFKernel(LS, OS), NOISE, 2, batch_shape=(2,), capacity=4)
+    for t in range(25):
+        a.add(X[t], y[t])
+    b.set_data(X.transpose(0, 1), y.T)
+    for u, v in zip(a.predict(Xq), b.predict(Xq)):
+        torch.testing.assert_close(u, v, atol=1e-10, rtol=0)
+    b.refit()
+    torch.testing.assert_close(a.predict(Xq)[0], b.predict(Xq)[0], atol=1e-10, rtol=0)
+
+
+def test_predict_mask_reports_prior_for_unselected():
+    X, y, _, Xq = stream((3,), 10)
+    gp = ExactGP(RBFKernel(LS, OS), NOISE, 2, batch_shape=(3,))
+    for t in range(10):
+        gp.add(X[t], y[t])
+    full_m, full_v = gp.predict(Xq)
+    m, v = gp.predict(Xq, mask=torch.tensor([False, True, False]))
+    torch.testing.assert_close(m[1], full_m[1])
+    torch.testing.assert_close(v[1], full_v[1])
+    assert (m[[0, 2]] == 0).all() and torch.allclose(v[[0, 2]], torch.full_like(v[[0, 2]], OS))
+
+
+@pytest.mark.parametrize("batch", [(), (3, 4)])
+def test_sparse_with_room_equals_exact(batch):
+    X, y, masks, Xq = stream(batch, 40, seed=1)
+    k = RBFKernel(LS, OS)
+    ex = ExactGP(k, NOISE, 2, batch_shape=batch)
+    sp = SparseOnlineGP(k, NOISE, 2, batch_shape=batch, budget=50, novelty_tol=0.0)
+    for t in range(40):
+        mask = masks[t] if batch else None
+        ex.add(X[t], y[t], mask)
+        sp.add(X[t], y[t], mask)
+    assert torch.equal(sp.size, ex.size)
+    for u, v in zip(ex.predict(Xq), sp.predict(Xq)):
+        torch.testing.assert_close(u, v, atol=1e-4, rtol=0)
+
+
+def test_sparse_well_separated_points_agree_to_round_off():
+    k = RBFKernel(0.05, 1.0)
+    grid = torch.stack(torch.meshgrid(torch.linspace(0, 1, 6, dtype=D), torch.linspace(0, 1, 6, dtype=D),
+                                      indexing="ij"), -1).reshape(-1, 2)
+    y = torch.cos(5 * grid[:, 0])
+    ex, sp = ExactGP(k, NOISE, 2), SparseOnlineGP(k, NOISE, 2, budget=40, novelty_tol=0.0)
+    for xi, yi in zip(grid, y):
+        ex.add(xi, yi)
+        sp.add(xi, yi)
+    xq = grid[None, :5] + 0.01
+    for u, v in zip(ex.predict(xq[0]), sp.predict(xq[0])):
+        torch.testing.assert_close(u, v, atol=1e-12, rtol=0)
+
+
+def test_sparse_small_budget_stays_bounded_and_finite():
+    X, y, masks, Xq = stream((4,), 300, seed=2)
+    sp = SparseOnlineGP(RBFKernel(0.1, 1.0), 1e-4, 2, batch_shape=(4,), budget=8, novelty_tol=0.0)
+    for t in range(300):
+        sp.add(X[t], y[t], masks[t])
+        assert (sp.size <= 8).all()
+    m, v = sp.predict(Xq)
+    assert torch.isfinite(m).all() and torch.isfinite(v).all() and (v >= 0).all()
+    assert (sp.size == 8).all()
+    # Unused slots stay exactly zero: the padding invariant the batching relies on.
+    assert (sp.C[:, 8] == 0).all() and (sp.Q[:, :, 8] == 0).all() and (sp.alpha[:, 8] == 0).all()
+
+
+def test_sparse_deleting_new_point_equals_projection():
+    """Extending with x and deleting it again must equal the eta-corrected projection of x."""
+    X, y, _, _ = stream((), 12, seed=3)
+    k = RBFKernel(LS, OS)
+    a = SparseOnlineGP(k, NOISE, 2, budget=10, novelty_tol=0.0)
+    for t in range(10):
+        a.add(X[t], y[t])
+    b = SparseOnlineGP(k, NOISE, 2, budget=10, novelty_tol=0.0)
+    b.load_state_dict(a.state_dict())
+    x_new, y_new = X[10:11], y[10:11]
+    a._add(a._state(), x_new, y_new, force_project=True)
+    b._kl_argmin = lambda st: st["n"] - 1  # force deletion of the just-added vector
+    b._add(b._state(), x_new, y_new)
+    assert int(a.n) == int(b.n) == 10
+    for name in ("alpha", "C", "Q", "BV"):
+        torch.testing.assert_close(getattr(a, name), getattr(b, name), atol=1e-12, rtol=0)
+
+
+def test_sparse_deletion_picks_kl_argmin_and_keeps_rest():
+    """With a normal deletion, the survivors' basis vectors are the old ones minus one."""
+    X, y, _, _ = stream((), 11, seed=4)
+    sp = SparseOnlineGP(RBFKernel(LS, OS), NOISE, 2, budget=10, novelty_tol=0.0)
+    for t in range(11):
+        sp.add(X[t], y[t])
+    kept = {tuple(r) for r in sp.BV[0, :10].tolist()}
+    assert len(kept & {tuple(r) for r in X.tolist()}) == 10
+
+
+@pytest.mark.parametrize("cls,kw", [(ExactGP, {}), (SparseOnlineGP, {"budget": 5})])
+def test_duplicates_and_tiny_noise_stay_finite(cls, kw):
+    gp = cls(RBFKernel(0.2, 1.0), 1e-12, 2, **kw)
+    x = torch.tensor([0.3, 0.3], dtype=D)
+    for i in range(20):
+        gp.add(x, torch.tensor(1.0 + 1e-3 * i, dtype=D))
+    m, v = gp.predict(x[None])
+    assert torch.isfinite(m).all() and torch.isfinite(v).all() and (v >= 0).all()
+    assert abs(m.item() - 1.0095) < 1e-2
+
+
+def test_exact_zero_noise_duplicates_use_jitter():
+    gp = ExactGP(RBFKernel(0.2, 1.0), 0.0, 1)
+    for _ in range(3):
+        gp.add(torch.tensor([0.5]), torch.tensor(2.0))
+    m, v = gp.predict(torch.tensor([[0.5]]))
+    assert torch.isfinite(m).all() and abs(m.item() - 2.0) < 1e-3
+
+
+@pytest.mark.parametrize("cls", [ExactGP, SparseOnlineGP])
+def test_bad_inputs_raise(cls):
+    gp = cls(RBFKernel(), 0.1, 2, batch_shape=(3,))
+    x, y = torch.zeros(3, 2), torch.zeros(3)
+    with pytest.raises(ValueError, match="x must have shape"):
+        gp.add(torch.zeros(3, 3), y)
+    with pytest.raises(ValueError, match="y must have shape"):
+        gp.add(x, torch.zeros(4))
+    with pytest.raises(ValueError, match="NaN or inf"):
+        gp.add(torch.tensor([[0.0, float("nan")]] * 3), y)
+    with pytest.raises(ValueError, match="NaN or inf"):
+        gp.add(x, torch.tensor([0.0, float("inf"), 0.0]))
+    with pytest.raises(ValueError, match="mask"):
+        gp.add(x, y, mask=torch.ones(3))
+    with pytest.raises(ValueError, match="xq"):
+        gp.predict(torch.zeros(3, 2))
+    with pytest.raises(ValueError, match="noise_var"):
+        cls(RBFKernel(), -0.1, 2)
+    with pytest.raises(ValueError, match="lengthscale"):
+        RBFKernel(lengthscale=0.0)
+    assert (gp.size == 0).all()
+
+
+def test_reset_mask_and_capacity_errors():
+    gp = ExactGP(RBFKernel(), 0.1, 1, batch_shape=(2,), capacity=2, max_capacity=2)
+    for _ in range(2):
+        gp.add(torch.rand(2, 1), torch.rand(2))
+    with pytest.raises(GPNumericalError, match="full"):
+        gp.add(torch.rand(2, 1), torch.rand(2))
+    gp.reset(torch.tensor([True, False]))
+    assert gp.size.tolist() == [0, 2]
+    m, v = gp.predict(torch.full((2, 1, 1), 0.5))
+    assert m[0].item() == 0 and v[0].item() == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="budget"):
+        SparseOnlineGP(RBFKernel(), 0.1, 1, budget=0)

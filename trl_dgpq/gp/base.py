@@ -1,0 +1,179 @@
+"""The interface every GP backend implements, and the batching around it.
+
+A backend object holds ``prod(batch_shape)`` independent zero-mean GPs. Its
+state lives in tensors with one flat leading dimension ``N``. Public methods take
+and return tensors with the caller's ``batch_shape`` in front; a ``mask`` over the
+batch selects which GPs take part. Selected GPs are *gathered* into a compact
+sub-batch, updated, and written back, so touching one GP of each seed costs one
+GP's work, not ``A`` of them (DGPQ touches only the taken action's GP).
+
+Backends implement:
+    _state_names          names of the state tensors (leading dim N)
+    _empty_state(k)       dict of state tensors for k empty GPs
+    _add(st, x, y)        update state dict ``st`` in place with one point per GP
+    _predict(st, xq)      mean, latent variance (k, q)
+"""
+from __future__ import annotations
+
+import math
+from typing import Dict, Optional, Sequence, Tuple
+
+import numpy as np
+import torch
+from torch import nn
+
+from .kernels import DTYPE
+
+State = Dict[str, torch.Tensor]
+
+
+class GPNumericalError(RuntimeError):
+    """A factorisation failed even after the jitter ladder."""
+
+
+def check_finite(t: torch.Tensor, name: str) -> None:
+    if not torch.isfinite(t).all():
+        raise ValueError(f"{name} contains NaN or inf")
+
+
+class BatchedGP(nn.Module):
+    """Base class: a batch of independent zero-mean GPs (see module docstring)."""
+
+    _state_names: Tuple[str, ...] = ()
+
+    def __init__(self, kernel: nn.Module, noise_var: float, dim: int,
+                 batch_shape: Sequence[int] = (), dtype=DTYPE, device=None):
+        super().__init__()
+        noise_var = float(noise_var)
+        if not math.isfinite(noise_var) or noise_var < 0:
+            raise ValueError(f"noise_var must be finite and >= 0, got {noise_var}")
+        if int(dim) != dim or dim < 1:
+            raise ValueError(f"dim must be a positive integer, got {dim}")
+        batch_shape = torch.Size(batch_shape)
+        if any(b < 1 for b in batch_shape):
+            raise ValueError(f"batch_shape entries must be >= 1, got {tuple(batch_shape)}")
+        self.kernel = kernel.to(dtype=dtype, device=device)
+        self.noise_var = noise_var
+        self.dim = int(dim)
+        self.batch_shape = batch_shape
+        self.num_gps = math.prod(batch_shape)
+        self.dtype = dtype
+        self.device = torch.device(device) if device is not None else torch.device("cpu")
+        for name, t in self._empty_state(self.num_gps).items():
+            self.register_buffer(name, t)
+
+    # ------------------------------------------------------------------ public
+    @property
+    def size(self) -> torch.Tensor:
+        """Number of stored points (exact) or basis vectors (sparse), ``batch_shape``."""
+        return self.n.view(self.batch_shape)
+
+    @torch.no_grad()
+    def add(self, x: torch.Tensor, y: torch.Tensor, mask: Optional[torch.Tensor] = None) -> None:
+        """Condition the selected GPs on one observation each.
+
+        x: ``(*batch, dim)``; y: ``(*batch,)``; mask: ``(*batch,)`` bool or None (all).
+        """
+        x = self._check(x, "x", (*self.batch_shape, self.dim)).reshape(self.num_gps, self.dim)
+        y = self._check(y, "y", tuple(self.batch_shape)).reshape(self.num_gps)
+        rows = self._rows(mask)
+        self._rows_in_flight = rows
+        if rows is None:
+            self._prepare_add(None)
+            self._add(self._state(), x, y)
+        elif rows.numel():
+            self._prepare_add(rows)
+            st = self._state(rows)
+            self._add(st, x[rows], y[rows])
+            self._write(rows, st)
+
+    @torch.no_grad()
+    def predict(self, xq: torch.Tensor, mask: Optional[torch.Tensor] = None):
+        """Posterior mean and latent variance (no noise) at ``xq``.
+
+        xq: ``(*batch, q, dim)`` -> mean, var each ``(*batch, q)``. GPs outside
+        ``mask`` are not evaluated and report their prior (mean 0, var k(x, x)).
+        Variances are clamped at 0 against round-off.
+        """
+        if xq.dim() != len(self.batch_shape) + 2:
+            raise ValueError(f"xq must have shape (*batch_shape, q, dim) = "
+                             f"({', '.join(map(str, self.batch_shape))}, q, {self.dim}); got {tuple(xq.shape)}")
+        q = xq.shape[-2]
+        xq = self._check(xq, "xq", (*self.batch_shape, q, self.dim)).reshape(self.num_gps, q, self.dim)
+        rows = self._rows(mask)
+        if rows is None:
+            mean, var = self._predict(self._state(), xq)
+        else:
+            mean = xq.new_zeros(self.num_gps, q)
+            var = self.kernel.diag(xq).clone()
+            if rows.numel():
+                m, v = self._predict(self._state(rows), xq[rows])
+                mean[rows], var[rows] = m, v
+        shape = (*self.batch_shape, q)
+        return mean.view(shape), var.clamp_min(0).view(shape)
+
+    @torch.no_grad()
+    def reset(self, mask: Optional[torch.Tensor] = None) -> None:
+        """Empty the selected GPs (all when mask is None)."""
+        rows = self._rows(mask)
+        if rows is None:
+            rows = torch.arange(self.num_gps, device=self.device)
+        if rows.numel():
+            self._write(rows, self._empty_state(rows.numel()))
+
+    # --------------------------------------------------------------- helpers
+    def _check(self, t: torch.Tensor, name: str, shape) -> torch.Tensor:
+        if not torch.is_tensor(t):
+            t = torch.as_tensor(t)
+        if tuple(t.shape) != tuple(shape):
+            raise ValueError(f"{name} must have shape {tuple(shape)}, got {tuple(t.shape)}")
+        t = t.to(dtype=self.dtype, device=self.device)
+        check_finite(t, name)
+        return t
+
+    def _rows(self, mask: Optional[torch.Tensor]) -> Optional[torch.Tensor]:
+        """Flat indices of the selected GPs, or None for 'all of them'."""
+        if mask is None:
+            return None
+        mask = torch.as_tensor(mask, device=self.device)
+        if mask.dtype != torch.bool or tuple(mask.shape) != tuple(self.batch_shape):
+            raise ValueError(f"mask must be a bool tensor of shape {tuple(self.batch_shape)}, "
+                             f"got {mask.dtype} {tuple(mask.shape)}")
+        mask = mask.reshape(-1)
+        rows = mask.nonzero().squeeze(-1)
+        return None if rows.numel() == self.num_gps else rows
+
+    def _state(self, rows: Optional[torch.Tensor] = None) -> State:
+        if rows is None:
+            return {k: getattr(self, k) for k in self._state_names}
+        return {k: getattr(self, k).index_select(0, rows) for k in self._state_names}
+
+    def _write(self, rows: torch.Tensor, st: State) -> None:
+        for k in self._state_names:
+            getattr(self, k).index_copy_(0, rows, st[k])
+
+    def _prepare_add(self, rows: Optional[torch.Tensor]) -> None:
+        """Hook run before an add, e.g. to grow storage."""
+
+    def _global_rows(self, local_mask: torch.Tensor) -> torch.Tensor:
+        """Map a mask over the sub-batch being updated to flat GP indices."""
+        local = local_mask.nonzero().squeeze(-1)
+        rows = getattr(self, "_rows_in_flight", None)
+        return local if rows is None else rows[local]
+
+    def _gp_names(self, flat_rows: torch.Tensor) -> str:
+        """Human-readable batch indices for error messages."""
+        idx = [tuple(int(i) for i in np.unravel_index(r, self.batch_shape)) if self.batch_shape else ()
+               for r in flat_rows.reshape(-1)[:5].tolist()]
+        more = "" if flat_rows.numel() <= 5 else f" (+{flat_rows.numel() - 5} more)"
+        return f"{type(self).__name__} batch index {', '.join(map(str, idx))}{more}"
+
+    # ------------------------------------------------------- backend contract
+    def _empty_state(self, k: int) -> State:
+        raise NotImplementedError
+
+    def _add(self, st: State, x: torch.Tensor, y: torch.Tensor) -> None:
+        raise NotImplementedError
+
+    def _predict(self, st: State, xq: torch.Tensor):
+        raise NotImplementedError

@@ -1,0 +1,190 @@
+"""Exact GP regression with an incrementally bordered Cholesky factor.
+
+State per GP (capacity ``c``): inputs X ``(c, d)``, targets Y ``(c,)``, the lower
+Cholesky factor L of ``K + noise_var I`` ``(c, c)``, ``z = L^-1 y`` ``(c,)`` and the
+count n. Unused rows of L are identity rows and unused entries of X, Y, z are 0, so
+GPs of different sizes share one batched triangular solve:
+    mean(x*) = (L^-1 k*)^T z,    var(x*) = k** - |L^-1 k*|^2.
+Adding a point borders L with one row, ``l = L^-1 k_x``, ``d = sqrt(k_xx + noise - |l|^2)``:
+O(n^2), never a re-factorisation.
+"""
+from __future__ import annotations
+
+from typing import Optional
+
+import torch
+
+from .base import BatchedGP, GPNumericalError, State
+
+# Jitter ladder, relative to k(x, x): tried in order when a pivot is not positive.
+JITTERS = (1e-10, 1e-8, 1e-6, 1e-4)
+
+
+class ExactGP(BatchedGP):
+    """Batched exact GP. ``capacity`` is the initial storage per GP; when a GP fills
+    it, storage doubles (a copy, amortised O(1) per point). ``max_capacity`` (None =
+    unbounded) turns growth past it into a clear error instead."""
+
+    _state_names = ("X", "Y", "L", "z", "n")
+
+    def __init__(self, kernel, noise_var, dim, batch_shape=(), capacity: int = 1024,
+                 max_capacity: Optional[int] = None, **kw):
+        if int(capacity) != capacity or capacity < 1:
+            raise ValueError(f"capacity must be a positive integer, got {capacity}")
+        self.capacity = int(capacity)
+        self.max_capacity = max_capacity
+        super().__init__(kernel, noise_var, dim, batch_shape, **kw)
+
+    def _empty_state(self, k: int) -> State:
+        c, kw = self.capacity, dict(dtype=self.dtype, device=self.device)
+        return dict(
+            X=torch.zeros(k, c, self.dim, **kw),
+            Y=torch.zeros(k, c, **kw),
+            L=torch.eye(c, **kw).expand(k, c, c).clone(),
+            z=torch.zeros(k, c, **kw),
+            n=torch.zeros(k, dtype=torch.long, device=self.device),
+        )
+
+    # ----------------------------------------------------------------- growth
+    def _prepare_add(self, rows) -> None:
+        n = self.n if rows is None else self.n[rows]
+        if n.numel() and int(n.max()) >= self.capacity:
+            new = 2 * self.capacity
+            if self.max_capacity is not None:
+                if self.capacity >= self.max_capacity:
+                    full = (self.n >= self.capacity).nonzero().squeeze(-1)
+                    raise GPNumericalError(f"{self._gp_names(full)} is full "
+                                           f"(max_capacity={self.max_capacity} points)")
+                new = min(new, self.max_capacity)
+            self._grow(new)
+
+    def _grow(self, new: int) -> None:
+        old = self.capacity
+        self.capacity = new
+        fresh = self._empty_state(self.num_gps)
+        fresh["X"][:, :old] = self.X
+        fresh["Y"][:, :old] = self.Y
+        fresh["L"][:, :old, :old] = self.L
+        fresh["z"][:, :old] = self.z
+        fresh["n"] = self.n
+        for k, t in fresh.items():
+            setattr(self, k, t)
+
+    # ------------------------------------------------------------- algebra
+    def _add(self, st: State, x: torch.Tensor, y: torch.Tensor) -> None:
+        n = st["n"]
+        k = n.numel()
+        m, L = self._block(st, int(n.max()) + 1)  # the used block plus the new row
+        ar = torch.arange(m, device=n.device)
+        kx = self.kernel(st["X"][:, :m], x[:, None])[..., 0] * (ar < n[:, None])
+        # Identity padding keeps l zero beyond each GP's own n.
+        l = torch.linalg.solve_triangular(L, kx[..., None], upper=False)[..., 0]
+        kxx = self.kernel.diag(x[:, None])[:, 0]
+        d2 = kxx + self.noise_var - l.square().sum(-1)
+        d2 = self._jitter(d2, kxx, n)
+        d = d2.sqrt()
+        zn = (y - (l * st["z"][:, :m]).sum(-1)) / d
+        b = torch.arange(k, device=n.device)
+        l[b, n] = d
+        st["L"][b, n, :m] = l
+        st["z"][b, n] = zn
+        st["X"][b, n] = x
+        st["Y"][b, n] = y
+        n += 1
+
+    def _block(self, st: State, m: int):
+        """Width and contiguous leading block of L covering ``m`` rows. A strided slice
+        makes LAPACK copy and convert it (10x slower than the solve itself), so a
+        nearly full factor is used whole: its identity padding keeps results exact."""
+        cap = st["L"].shape[-1]
+        if m > cap // 2:
+            return cap, st["L"]
+        return m, st["L"][:, :m, :m].contiguous()
+
+    def _jitter(self, d2, kxx, n):
+        floor = 1e-12 * (kxx + self.noise_var)
+        bad = ~(d2 > floor)  # also catches NaN
+        for j in JITTERS:
+            if not bad.any():
+                break
+            d2 = torch.where(bad, d2 + j * kxx, d2)
+            bad = ~(d2 > floor)
+        if bad.any():
+            raise GPNumericalError(f"Cholesky update failed even with jitter {JITTERS[-1]:g}*k(x,x) "
+                                   f"in {self._gp_names(self._global_rows(bad))}")
+        return d2
+
+    def _predict(self, st: State, xq: torch.Tensor):
+        n = st["n"]
+        m = int(n.max()) if n.numel() else 0
+        kqq = self.kernel.diag(xq)
+        if m == 0:
+            return torch.zeros_like(kqq), kqq.clone()
+        m, L = self._block(st, m)
+        ar = torch.arange(m, device=n.device)
+        kx = self.kernel(st["X"][:, :m], xq) * (ar < n[:, None])[..., None]  # (k, m, q)
+        v = torch.linalg.solve_triangular(L, kx, upper=False)
+        mean = (v * st["z"][:, :m, None]).sum(-2)
+        var = kqq - v.square().sum(-2)
+        return mean, var
+
+    # ------------------------------------------------------------ bulk fit
+    @torch.no_grad()
+    def set_data(self, x: torch.Tensor, y: torch.Tensor) -> None:
+        """Replace every GP's data by ``x (*batch, n, dim)``, ``y (*batch, n)`` with one
+        Cholesky factorisation (used to load data sets and after kernel changes)."""
+        if x.dim() != len(self.batch_shape) + 2:
+            raise ValueError(f"x must have shape (*batch_shape, n, dim), got {tuple(x.shape)}")
+        npts = x.shape[-2]
+        x = self._check(x, "x", (*self.batch_shape, npts, self.dim)).reshape(self.num_gps, npts, self.dim)
+        y = self._check(y, "y", (*self.batch_shape, npts)).reshape(self.num_gps, npts)
+        if self.max_capacity is not None and npts > self.max_capacity:
+            raise GPNumericalError(f"{npts} points exceed max_capacity={self.max_capacity}")
+        self.reset()
+        if npts > self.capacity:
+            self._grow(npts)
+        self._factorise(torch.arange(self.num_gps, device=self.device), x, y)
+
+    @torch.no_grad()
+    def refit(self, mask: Optional[torch.Tensor] = None) -> None:
+        """Re-factorise the selected GPs from their stored data, e.g. after the kernel's
+        hyperparameters or feature map changed."""
+        rows = self._rows(mask)
+        rows = torch.arange(self.num_gps, device=self.device) if rows is None else rows
+        for r in rows.tolist():  # GPs may hold different n: one factorisation each
+            npts = int(self.n[r])
+            if npts:
+                self._factorise(torch.tensor([r], device=self.device),
+                                self.X[r:r + 1, :npts].clone(), self.Y[r:r + 1, :npts].clone())
+
+    def _factorise(self, rows, x, y):
+        npts = x.shape[-2]
+        K = self.kernel(x, x)
+        K.diagonal(dim1=-2, dim2=-1).add_(self.noise_var)
+        L = cholesky_jitter(K, self.kernel.diag(x).amax(-1), lambda bad: self._gp_names(rows[bad]))
+        z = torch.linalg.solve_triangular(L, y[..., None], upper=False)[..., 0]
+        self.X[rows, :npts] = x
+        self.Y[rows, :npts] = y
+        self.L[rows, :npts, :npts] = L
+        self.z[rows, :npts] = z
+        self.n[rows] = npts
+
+
+def cholesky_jitter(K: torch.Tensor, scale: torch.Tensor, describe=lambda bad: "GP") -> torch.Tensor:
+    """Batched Cholesky with the jitter ladder (relative to ``scale``, shape batch).
+    Raises GPNumericalError naming the failing GPs instead of returning NaN."""
+    if not torch.isfinite(K).all():
+        bad = ~torch.isfinite(K).flatten(-2).all(-1)
+        raise GPNumericalError(f"non-finite covariance in {describe(bad)}")
+    L, info = torch.linalg.cholesky_ex(K)
+    for j in JITTERS:
+        bad = info > 0
+        if not bad.any():
+            return L
+        eye = torch.eye(K.shape[-1], dtype=K.dtype, device=K.device)
+        Kj = torch.where(bad[..., None, None], K + (j * scale)[..., None, None] * eye, K)
+        L, info = torch.linalg.cholesky_ex(Kj)
+    bad = info > 0
+    if bad.any():
+        raise GPNumericalError(f"Cholesky failed even with jitter {JITTERS[-1]:g} in {describe(bad)}")
+    return L
