@@ -196,3 +196,28 @@ def test_reset_mask_and_capacity_errors():
     assert m[0].item() == 0 and v[0].item() == pytest.approx(1.0)
     with pytest.raises(ValueError, match="budget"):
         SparseOnlineGP(RBFKernel(), 0.1, 1, budget=0)
+
+
+@pytest.mark.parametrize("cls,kw", [(ExactGP, {}), (SparseOnlineGP, {"budget": 6, "novelty_tol": 1e-3}),
+                                    (SparseOnlineGP, {"budget": 50, "novelty_tol": 0.3})])
+def test_add_if_uncertain_matches_predict(cls, kw):
+    """The gated add reports exactly what predict sees before and after, and only
+    adds where the variance exceeds the gate (projection and deletion paths included)."""
+    X, y, masks, _ = stream((3, 2), 30, seed=5)
+    a = cls(RBFKernel(LS, OS), NOISE, 2, batch_shape=(3, 2), **kw)
+    b = cls(RBFKernel(LS, OS), NOISE, 2, batch_shape=(3, 2), **kw)
+    tol = 0.5
+    for t in range(30):
+        x = X[t]
+        _, before = b.predict(x[..., None, :])
+        var1, mean2, var2, added = a.add_if_uncertain(x, y[t], tol, mask=masks[t])
+        sel = masks[t]
+        torch.testing.assert_close(var1[sel], before[..., 0][sel], atol=1e-10, rtol=0)
+        assert (var1[~sel] == OS).all() and (mean2[~sel] == 0).all()  # unselected: prior
+        expect = sel & (before[..., 0] > tol)
+        assert torch.equal(added, expect)
+        b.add(x, y[t], mask=expect)
+        m_after, v_after = b.predict(x[..., None, :])
+        torch.testing.assert_close(mean2[sel], m_after[..., 0][sel], atol=1e-9, rtol=0)
+        torch.testing.assert_close(var2[sel], v_after[..., 0][sel], atol=1e-9, rtol=0)
+        assert torch.equal(a.size, b.size)

@@ -130,27 +130,37 @@ class DGPQ:
         self.rng = SeedStreams(seeds, stream=TIE_STREAM, device=device)
         self.qhat_updates = torch.zeros(self.S, dtype=torch.long, device=device)
         self.gp_adds = torch.zeros(self.S, dtype=torch.long, device=device)
-        self._seeds = torch.arange(self.S, device=device)
+        self._memo = (None, -1, None)
+
+    def qhat_values(self, s: torch.Tensor) -> torch.Tensor:
+        """Q̂_a(s) for all actions, (S, A). Memoised on the state tensor and Q̂'s version:
+        Q̂(s_{t+1}) of step 3 is Q̂(s_t) of the next step 1 and of step 6."""
+        m_s, m_version, m_q = self._memo
+        if s is m_s and m_version == self.qhat.version:
+            return m_q
+        q = self.qhat(s)
+        self._memo = (s, self.qhat.version, q)
+        return q
 
     # Step 1
     def act(self, s: torch.Tensor) -> torch.Tensor:
         """Greedy action on Q̂ with random tie-breaking. s (S, dim) -> (S,) long."""
-        return argmax_random_ties(self.qhat(s), self.rng.uniform(self.A))
+        return argmax_random_ties(self.qhat_values(s), self.rng.uniform(self.A))
 
     # Step 3
     def q_target(self, r: torch.Tensor, s_next: torch.Tensor, terminal: torch.Tensor) -> torch.Tensor:
-        bootstrap = self.qhat(s_next).amax(-1)
+        bootstrap = self.qhat_values(s_next).amax(-1)
         return r + self.cfg.gamma * torch.where(terminal, torch.zeros_like(bootstrap), bootstrap)
 
-    # Steps 4 and 5: the taken action's GP at s_t (residual mean, latent variance)
-    def gp_at(self, s: torch.Tensor, taken: torch.Tensor):
-        xq = s[:, None, None, :].expand(self.S, self.A, 1, s.shape[-1])
-        mean, var = self.gp.predict(xq, mask=taken)
-        return mean[taken], var[taken]  # (k, 1): one row per selected seed, in seed order
-
-    def learn_gp(self, s: torch.Tensor, residual: torch.Tensor, taken: torch.Tensor) -> None:
+    # Steps 4 and 5
+    def learn_gp(self, s: torch.Tensor, residual: torch.Tensor, taken: torch.Tensor):
+        """sigma1^2 = var GP_{a_t}(s_t); if > sigma_tol2, add (s_t, residual) to GP_{a_t};
+        then the GP's residual mean and sigma2^2 at s_t. Each (S,), for the taken action."""
         x = s[:, None, :].expand(self.S, self.A, s.shape[-1])
-        self.gp.add(x, residual[:, None].expand(self.S, self.A), mask=taken)
+        y = residual[:, None].expand(self.S, self.A)
+        var1, mean2, var2, added = self.gp.add_if_uncertain(x, y, self.cfg.sigma_tol2, mask=taken)
+        pick = lambda t: torch.where(taken, t, torch.zeros_like(t)).sum(-1)  # noqa: E731
+        return pick(var1), pick(mean2), pick(var2), added.any(-1)
 
     # Step 6
     def update_qhat(self, s, a, mu, mask) -> None:
@@ -164,26 +174,19 @@ class DGPQ:
         S = self.S
         active = torch.ones(S, dtype=torch.bool, device=s.device) if active is None else active
         s = s.to(torch.float64)
+        qhat_sa = self.qhat_values(s).gather(1, a[:, None])[:, 0]  # before q_target: memo order
         q_t = self.q_target(r.to(torch.float64), s_next.to(torch.float64), terminal)
-        qhat_sa = self.qhat(s).gather(1, a[:, None])[:, 0]
-        taken = torch.nn.functional.one_hot(a, self.A).bool() & active[:, None]
-        learn = torch.zeros(S, dtype=torch.bool, device=s.device)
-        update = torch.zeros_like(learn)
+        taken = (a[:, None] == torch.arange(self.A, device=a.device)) & active[:, None]  # (S, A)
         if not active.any():
-            return dict(learn=learn, update=update)
-        _, var1 = self.gp_at(s, taken)
-        learn[active] = var1[:, 0] > self.cfg.sigma_tol2
-        if learn.any():
-            self.learn_gp(s, q_t - qhat_sa, taken & learn[:, None])
-            self.gp_adds += learn
-            mean2, var2 = self.gp_at(s, taken & learn[:, None])
-            converged = (var2[:, 0] <= self.cfg.sigma_tol2) & (-mean2[:, 0] > 2 * self.cfg.eps1)
-            update[learn] = converged
-            if update.any():
-                mu = torch.zeros_like(qhat_sa)
-                mu[learn] = qhat_sa[learn] + mean2[:, 0] + self.cfg.eps1
-                self.update_qhat(s, a, mu, update)
-        return dict(learn=learn, update=update)
+            none = torch.zeros(S, dtype=torch.bool, device=s.device)
+            return dict(learn=none, update=none)
+        var1, mean2, var2, learn = self.learn_gp(s, q_t - qhat_sa, taken)
+        self.gp_adds += learn
+        # Step 6: converged (sigma1^2 > sigma_tol2 >= sigma2^2) to a value clearly below Q̂
+        update = learn & (var2 <= self.cfg.sigma_tol2) & (-mean2 > 2 * self.cfg.eps1)
+        if update.any():
+            self.update_qhat(s, a, qhat_sa + mean2 + self.cfg.eps1, update)
+        return dict(learn=learn, update=update, var1=var1, var2=var2, mean2=mean2, q_target=q_t)
 
     def episode_stats(self) -> dict:
         """Per-seed counters for the per-episode CSV, each (S,)."""

@@ -52,26 +52,37 @@ class SeedStreams:
     """
 
     MAX_PER_DRAW = 1 << 20
+    BLOCK = 256  # draws generated at once (hashing is ~12 tensor ops; a buffer read is one)
 
     def __init__(self, seeds: Sequence[int], stream: int = 0, device=None):
         seeds = torch.as_tensor(list(seeds), dtype=torch.int64, device=device)
         if seeds.dim() != 1 or (seeds < 0).any():
             raise ValueError("seeds must be a list of non-negative integers")
         self.key = splitmix64(splitmix64(seeds) ^ splitmix64(torch.full_like(seeds, stream)))
-        self.counter = torch.zeros_like(seeds)
+        self.counter = 0  # draws made so far; every seed of a batch draws in lock-step
+        self._buf, self._buf_start, self._buf_shape = None, 0, None
 
-    def uniform(self, *shape: int, mask: torch.Tensor | None = None) -> torch.Tensor:
-        """Uniform [0, 1) float64 of shape ``(S, *shape)``; advances the counter of every
-        seed (or of the seeds in ``mask``, for draws that only some seeds make)."""
+    def _generate(self, first: int, draws: int, n: int) -> torch.Tensor:
+        """Draws ``first .. first + draws - 1`` of n numbers each: (S, draws, n)."""
+        idx = torch.arange(n, dtype=torch.int64, device=self.key.device)
+        ctr = torch.arange(first, first + draws, dtype=torch.int64, device=self.key.device)
+        z = splitmix64(self.key[:, None, None] + ctr[:, None] * self.MAX_PER_DRAW + idx)
+        return _lsr(z, 11).double() * 2.0 ** -53
+
+    def uniform(self, *shape: int) -> torch.Tensor:
+        """Uniform [0, 1) float64 of shape ``(S, *shape)``: draw number ``counter`` of each
+        seed. Values do not depend on how draws are buffered."""
         n = 1
         for s in shape:
             n *= s
         if n > self.MAX_PER_DRAW:
             raise ValueError(f"at most {self.MAX_PER_DRAW} numbers per draw")
-        idx = torch.arange(n, dtype=torch.int64, device=self.key.device)
-        z = splitmix64(self.key[:, None] + self.counter[:, None] * self.MAX_PER_DRAW + idx)
-        self.counter += 1 if mask is None else mask.long()
-        return (_lsr(z, 11).double() * 2.0 ** -53).view(-1, *shape)
+        i = self.counter - self._buf_start
+        if self._buf is None or self._buf_shape != shape or i >= self._buf.shape[1]:
+            self._buf = self._generate(self.counter, self.BLOCK, n)
+            self._buf_start, self._buf_shape, i = self.counter, shape, 0
+        self.counter += 1
+        return self._buf[:, i].view(-1, *shape)
 
     def state_dict(self):
-        return {"key": self.key.clone(), "counter": self.counter.clone()}
+        return {"key": self.key.clone(), "counter": self.counter}

@@ -10,7 +10,7 @@ GP's work, not ``A`` of them (DGPQ touches only the taken action's GP).
 Backends implement:
     _state_names          names of the state tensors (leading dim N)
     _empty_state(k)       dict of state tensors for k empty GPs
-    _add(st, x, y)        update state dict ``st`` in place with one point per GP
+    _add(st, x, y, gate)  update state dict ``st`` in place with one point per GP
     _predict(st, xq)      mean, latent variance (k, q)
 """
 from __future__ import annotations
@@ -74,18 +74,49 @@ class BatchedGP(nn.Module):
 
         x: ``(*batch, dim)``; y: ``(*batch,)``; mask: ``(*batch,)`` bool or None (all).
         """
+        self._update(x, y, mask, None)
+
+    @torch.no_grad()
+    def add_if_uncertain(self, x: torch.Tensor, y: torch.Tensor, var_tol: float,
+                         mask: Optional[torch.Tensor] = None):
+        """Add (x, y) only to the selected GPs whose latent variance at x exceeds
+        ``var_tol``; report the variance before and the posterior after, at x.
+
+        The gated update of DGPQ (steps 4-5), in one pass: the backends get the
+        posterior at x from the rank-one update itself, not from fresh predictions.
+        x ``(*batch, dim)``, y ``(*batch,)``. Returns ``var_before, mean_after,
+        var_after, added``, each ``(*batch,)``; unselected GPs report their prior
+        and ``added=False``.
+        """
+        return self._update(x, y, mask, float(var_tol))
+
+    def _update(self, x, y, mask, gate):
         x = self._check(x, "x", (*self.batch_shape, self.dim)).reshape(self.num_gps, self.dim)
         y = self._check(y, "y", tuple(self.batch_shape)).reshape(self.num_gps)
         rows = self._rows(mask)
         self._rows_in_flight = rows
         if rows is None:
             self._prepare_add(None)
-            self._add(self._state(), x, y)
+            out = self._add(self._state(), x, y, gate)
         elif rows.numel():
             self._prepare_add(rows)
-            st = self._state(rows)
-            self._add(st, x[rows], y[rows])
-            self._write(rows, st)
+            width = self._width(self.n[rows], adding=True)
+            st = self._state(rows, width)
+            out = self._add(st, x[rows], y[rows], gate)
+            if gate is None or out[3].any():
+                self._write(rows, st, width)
+        if gate is None:
+            return None
+        if rows is not None:  # unselected GPs report their prior
+            prior = self.kernel.diag(x)
+            res = (prior.clone(), torch.zeros_like(prior), prior.clone(),
+                   torch.zeros(self.num_gps, dtype=torch.bool, device=self.device))
+            if rows.numel():
+                for full, part in zip(res, out):
+                    full[rows] = part
+            out = res
+        var1, mean2, var2, added = (t.view(self.batch_shape) for t in out)
+        return var1.clamp_min(0), mean2, var2.clamp_min(0), added
 
     @torch.no_grad()
     def predict(self, xq: torch.Tensor, mask: Optional[torch.Tensor] = None):
@@ -107,7 +138,7 @@ class BatchedGP(nn.Module):
             mean = xq.new_zeros(self.num_gps, q)
             var = self.kernel.diag(xq).clone()
             if rows.numel():
-                m, v = self._predict(self._state(rows), xq[rows])
+                m, v = self._predict(self._state(rows, self._width(self.n[rows])), xq[rows])
                 mean[rows], var[rows] = m, v
         shape = (*self.batch_shape, q)
         return mean.view(shape), var.clamp_min(0).view(shape)
@@ -119,7 +150,7 @@ class BatchedGP(nn.Module):
         if rows is None:
             rows = torch.arange(self.num_gps, device=self.device)
         if rows.numel():
-            self._write(rows, self._empty_state(rows.numel()))
+            self._clear(rows)
 
     # --------------------------------------------------------------- helpers
     def _check(self, t: torch.Tensor, name: str, shape) -> torch.Tensor:
@@ -143,21 +174,38 @@ class BatchedGP(nn.Module):
         rows = mask.nonzero().squeeze(-1)
         return None if rows.numel() == self.num_gps else rows
 
-    def _state(self, rows: Optional[torch.Tensor] = None) -> State:
+    def _state(self, rows: Optional[torch.Tensor] = None, width: Optional[int] = None) -> State:
+        """The state of all GPs (views), or a copy of the selected rows; with ``width``,
+        only the first ``width`` slots along dim 1 (see ``_width``)."""
         if rows is None:
             return {k: getattr(self, k) for k in self._state_names}
-        return {k: getattr(self, k).index_select(0, rows) for k in self._state_names}
+        if width is None:
+            return {k: getattr(self, k).index_select(0, rows) for k in self._state_names}
+        return {k: getattr(self, k)[rows] if k == "n" else getattr(self, k)[rows, :width]
+                for k in self._state_names}
 
-    def _write(self, rows: torch.Tensor, st: State) -> None:
+    def _write(self, rows: torch.Tensor, st: State, width: Optional[int] = None) -> None:
         for k in self._state_names:
-            getattr(self, k).index_copy_(0, rows, st[k])
+            if width is None or k == "n":
+                getattr(self, k).index_copy_(0, rows, st[k])
+            else:
+                getattr(self, k)[rows, :width] = st[k]
+
+    def _width(self, n: torch.Tensor, adding: bool = False) -> Optional[int]:
+        """How many leading slots (dim 1 of every state tensor but n) GPs with counts
+        ``n`` use, so that a gather copies only those; None = all. Backends whose
+        slots beyond the count are all zero may override this."""
+        return None
+
+    def _clear(self, rows: torch.Tensor) -> None:
+        """Empty the GPs ``rows``."""
+        self._write(rows, self._empty_state(rows.numel()))
 
     def _prepare_add(self, rows: Optional[torch.Tensor]) -> None:
         """Hook run before an add, e.g. to grow storage."""
 
-    def _global_rows(self, local_mask: torch.Tensor) -> torch.Tensor:
-        """Map a mask over the sub-batch being updated to flat GP indices."""
-        local = local_mask.nonzero().squeeze(-1)
+    def _global_rows(self, local: torch.Tensor) -> torch.Tensor:
+        """Map indices into the sub-batch being updated to flat GP indices."""
         rows = getattr(self, "_rows_in_flight", None)
         return local if rows is None else rows[local]
 
@@ -172,7 +220,10 @@ class BatchedGP(nn.Module):
     def _empty_state(self, k: int) -> State:
         raise NotImplementedError
 
-    def _add(self, st: State, x: torch.Tensor, y: torch.Tensor) -> None:
+    def _add(self, st: State, x: torch.Tensor, y: torch.Tensor, gate: Optional[float]):
+        """Add (x_i, y_i) to GP i of ``st`` in place, only where its variance at x_i
+        exceeds ``gate`` (all when None). Returns ``(var_before, mean_after,
+        var_after, added)`` at x, each (k,)."""
         raise NotImplementedError
 
     def _predict(self, st: State, xq: torch.Tensor):

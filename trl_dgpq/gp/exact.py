@@ -71,26 +71,35 @@ class ExactGP(BatchedGP):
             setattr(self, k, t)
 
     # ------------------------------------------------------------- algebra
-    def _add(self, st: State, x: torch.Tensor, y: torch.Tensor) -> None:
+    def _add(self, st: State, x: torch.Tensor, y: torch.Tensor, gate=None):
         n = st["n"]
-        k = n.numel()
         m, L = self._block(st, int(n.max()) + 1)  # the used block plus the new row
         ar = torch.arange(m, device=n.device)
         kx = self.kernel(st["X"][:, :m], x[:, None])[..., 0] * (ar < n[:, None])
         # Identity padding keeps l zero beyond each GP's own n.
         l = torch.linalg.solve_triangular(L, kx[..., None], upper=False)[..., 0]
         kxx = self.kernel.diag(x[:, None])[:, 0]
-        d2 = kxx + self.noise_var - l.square().sum(-1)
-        d2 = self._jitter(d2, kxx, n)
-        d = d2.sqrt()
-        zn = (y - (l * st["z"][:, :m]).sum(-1)) / d
-        b = torch.arange(k, device=n.device)
-        l[b, n] = d
-        st["L"][b, n, :m] = l
-        st["z"][b, n] = zn
-        st["X"][b, n] = x
-        st["Y"][b, n] = y
-        n += 1
+        mean = (l * st["z"][:, :m]).sum(-1)
+        var = kxx - l.square().sum(-1)
+        learn = torch.ones_like(n, dtype=torch.bool) if gate is None else var > gate
+        b = learn.nonzero().squeeze(-1)
+        if b.numel():
+            d2 = self._jitter(var[b] + self.noise_var, kxx[b], learn)
+            d = d2.sqrt()
+            nb, lb = n[b], l[b]
+            lb[torch.arange(b.numel(), device=b.device), nb] = d
+            st["L"][b, nb, :m] = lb
+            st["z"][b, nb] = (y[b] - mean[b]) / d
+            st["X"][b, nb] = x[b]
+            st["Y"][b, nb] = y[b]
+            n += learn
+            # Posterior at x from the new row: k_new = [l; var/d] against z_new = [z; z_n].
+            gain = torch.zeros_like(var)
+            gain[b] = var[b] / d2
+            mean_after, var_after = mean + gain * (y - mean), var - gain * var
+        else:
+            mean_after, var_after = mean, var
+        return var, mean_after, var_after, learn
 
     def _block(self, st: State, m: int):
         """Width and contiguous leading block of L covering ``m`` rows. A strided slice
@@ -101,7 +110,7 @@ class ExactGP(BatchedGP):
             return cap, st["L"]
         return m, st["L"][:, :m, :m].contiguous()
 
-    def _jitter(self, d2, kxx, n):
+    def _jitter(self, d2, kxx, learn):
         floor = 1e-12 * (kxx + self.noise_var)
         bad = ~(d2 > floor)  # also catches NaN
         for j in JITTERS:
@@ -111,7 +120,7 @@ class ExactGP(BatchedGP):
             bad = ~(d2 > floor)
         if bad.any():
             raise GPNumericalError(f"Cholesky update failed even with jitter {JITTERS[-1]:g}*k(x,x) "
-                                   f"in {self._gp_names(self._global_rows(bad))}")
+                                   f"in {self._gp_names(self._global_rows(learn.nonzero().squeeze(-1)[bad]))}")
         return d2
 
     def _predict(self, st: State, xq: torch.Tensor):

@@ -66,6 +66,18 @@ class SparseOnlineGP(BatchedGP):
             n=torch.zeros(k, dtype=torch.long, device=self.device),
         )
 
+    def _width(self, n: torch.Tensor, adding: bool = False) -> int:
+        # Slots beyond n are zero, and rows [:w] of CQ hold all of C and Q's non-zeros.
+        M = self.budget + 1
+        return max(1, min(M, int(n.max()) + int(adding)))
+
+    def _clear(self, rows: torch.Tensor) -> None:
+        w = self._width(self.n[rows])  # zeroing the used slots restores the empty state
+        self.BV[rows, :w] = 0
+        self.alpha[rows, :w] = 0
+        self.CQ[rows, :w] = 0
+        self.n[rows] = 0
+
     def _kx(self, st: State, x: torch.Tensor) -> torch.Tensor:
         """k(BV, x) ``(k, M, q)`` for x ``(k, q, d)``, zero on unused slots."""
         M = st["BV"].shape[1]
@@ -80,38 +92,44 @@ class SparseOnlineGP(BatchedGP):
         return mean, var
 
     # ------------------------------------------------------------- updates
-    def _add(self, st: State, x: torch.Tensor, y: torch.Tensor, force_project: bool = False) -> None:
+    def _add(self, st: State, x: torch.Tensor, y: torch.Tensor, gate=None, force_project: bool = False):
         alpha, CQ, n = st["alpha"], st["CQ"], st["n"]
-        k, M = alpha.shape
-        kx = self._kx(st, x[:, None])                                  # (k, M, 1)
+        k, w = alpha.shape   # w <= M slots in this (possibly narrowed) state
+        M = self.budget + 1
+        kx = self._kx(st, x[:, None])                                  # (k, w, 1)
         kxx = self.kernel.diag(x)                                      # (k,)
-        CQk = torch.bmm(kx.mT, CQ)[:, 0]                               # [C k, Q k]
-        Ck, e = CQk[:, :M], CQk[:, M:]                                 # C k, Q k
+        CQk = torch.bmm(kx.mT, CQ)[:, 0]                               # [C k, Q k], (k, 2M)
+        Ck, e = CQk[:, :w], CQk[:, M:M + w]                            # zero beyond w
         kx = kx[..., 0]
         mean = (kx * alpha).sum(-1)
         var = kxx + (kx * Ck).sum(-1)
-        denom = self.noise_var + var
-        q, r = (y - mean) / denom, -1.0 / denom
+        learn = torch.ones_like(n, dtype=torch.bool) if gate is None else var > gate
+        r = -1.0 / (self.noise_var + var)
+        q = (mean - y) * r
         gamma = (kxx - (kx * e).sum(-1)).clamp_min(0)                  # novelty
-        # An empty GP always takes its first point as a basis vector.
-        extend = ((gamma > self.novelty_tol) | (n == 0)) & (gamma > DUPLICATE_RTOL * kxx)
+        # An empty GP always takes its first point as a basis vector; a duplicate never does.
+        extend = ((gamma > self.novelty_tol) | (n == 0)) & (gamma > DUPLICATE_RTOL * kxx) & learn
         if force_project:
             extend = torch.zeros_like(extend)
-        unit = torch.nn.functional.one_hot(n.clamp_max(M - 1), M).to(alpha.dtype)
+        unit = (torch.arange(w, device=n.device) == n[:, None]).to(alpha.dtype)  # slot n
         ext = extend[:, None]
         # Projection: s = C k + e, scaled by eta = 1/(1 + gamma r). Extension: s = [C k; 1].
         s = Ck + torch.where(ext, unit, e)
-        coef = torch.where(extend, torch.ones_like(gamma), 1.0 / (1.0 + gamma * r))
+        coef = torch.where(extend, 1.0, 1.0 / (1.0 + gamma * r)) * learn
         alpha.add_(s * (q * coef)[:, None])
         # C += r coef s s^T and, on extension, Q += e_hat e_hat^T / gamma with e_hat = [e; -1]:
-        # one rank-2 update of the stacked [C; Q].
+        # one rank-2 update of [C, Q].
         e_hat = (e - unit) * ext
-        w = torch.where(extend, 1.0 / gamma.clamp_min(1e-300), torch.zeros_like(gamma))
-        left = torch.stack((s, e_hat), -1)                             # (k, M, 2)
+        inv_gamma = torch.where(extend, 1.0 / gamma.clamp_min(1e-300), 0.0)
+        left = torch.stack((s, e_hat), -1)                             # (k, w, 2)
         right = torch.zeros(k, 2, 2 * M, dtype=alpha.dtype, device=alpha.device)
-        right[:, 0, :M] = s * (r * coef)[:, None]
-        right[:, 1, M:] = e_hat * w[:, None]
+        right[:, 0, :w] = s * (r * coef)[:, None]
+        right[:, 1, M:M + w] = e_hat * inv_gamma[:, None]
         CQ.baddbmm_(left, right)
+        # Posterior at x: k_x^T s is var (extension) or var - gamma (projection).
+        u = torch.where(extend, var, var - gamma)
+        cu = coef * u
+        mean_after, var_after = mean + q * cu, var + r * cu * u
         if extend.any():
             b = extend.nonzero().squeeze(-1)
             st["BV"][b, n[b]] = x[b]
@@ -119,6 +137,8 @@ class SparseOnlineGP(BatchedGP):
             full = n > self.budget
             if full.any():
                 self._delete(st, self._kl_argmin(st), full)
+                mean_after, var_after = (v[:, 0] for v in self._predict(st, x[:, None]))
+        return var, mean_after, var_after, learn
 
     @staticmethod
     def _kl_argmin(st: State) -> torch.Tensor:
