@@ -2,6 +2,7 @@
 """Benchmarks. Each sub-command prints a table and writes ``bench-<name>.json``.
 
     python scripts/bench.py gp      # cost of one add + one predict per GP (exact, sparse, naive)
+    python scripts/bench.py dgpq    # cost per seed-step of the whole DGPQ loop on the square
 """
 from __future__ import annotations
 
@@ -117,6 +118,36 @@ def summarise_gp(results):
                   f"max {max(get[('sparse', B, n)] for n in ns):.1f} us per GP")
 
 
+def bench_dgpq(args):
+    """Whole loop (env + agent + collector) on the square, "shaped" preset."""
+    from collectors.experiment import resolve_config, run_experiment
+
+    total = args.steps + args.window
+    cases = [(gp, S) for gp in ("sparse", "exact") for S in (1, 64)]
+    results = []
+    # Warm-up: one-time costs (allocator, first calls) do not belong to "the first 200 steps".
+    run_experiment(resolve_config("square", "shaped", [0], 10 ** 9, agent=dict(gp="sparse")),
+                   progress=False, max_total_steps=300)
+    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}; square/shaped, budget {args.budget}")
+    print(f"{'backend':>7} {'seeds':>6} {'steps':>12} {'us/seed-step':>13}")
+    for gp, S in cases:
+        cfg = resolve_config("square", "shaped", list(range(S)), 10 ** 9, agent=dict(gp=gp, budget=args.budget))
+        t0 = time.perf_counter()
+        df = run_experiment(cfg, progress=False, max_total_steps=total)
+        sec = np.asarray(df.attrs["step_seconds"])
+        for label, window in ((f"0-{args.window}", sec[:args.window]), (f"{args.steps}+", sec[args.steps:])):
+            us = float(window.mean() / S * 1e6)
+            results.append(dict(backend=gp, seeds=S, steps=label, us_per_seed_step=round(us, 2)))
+            print(f"{gp:>7} {S:>6} {label:>12} {us:>13.1f}", flush=True)
+        print(f"        ({len(sec)} batched steps in {time.perf_counter() - t0:.0f} s, "
+              f"{len(df)} episodes; whole-run mean {sec.mean() / S * 1e6:.1f} us/seed-step)")
+    out = Path(args.out or "bench-dgpq.json")
+    out.write_text(json.dumps(dict(meta=dict(torch=torch.__version__, threads=torch.get_num_threads(),
+                                             env="square", preset="shaped", budget=args.budget),
+                                   results=results), indent=1))
+    print(f"wrote {out}")
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="what", required=True)
@@ -126,6 +157,12 @@ def main(argv=None):
     g.add_argument("--max-gb", type=float, default=8.0, help="skip exact cases needing more memory")
     g.add_argument("--out", default=None)
     g.set_defaults(fn=bench_gp)
+    d = sub.add_parser("dgpq", help="DGPQ loop cost per seed-step, early and late")
+    d.add_argument("--steps", type=int, default=20000, help="late window starts here")
+    d.add_argument("--window", type=int, default=200)
+    d.add_argument("--budget", type=int, default=100)
+    d.add_argument("--out", default=None)
+    d.set_defaults(fn=bench_dgpq)
     args = p.parse_args(argv)
     torch.set_num_threads(torch.get_num_threads())
     args.fn(args)

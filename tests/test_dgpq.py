@@ -1,0 +1,139 @@
+import math
+
+import pytest
+import torch
+
+from trl_dgpq.bounds import section5
+from trl_dgpq.dgpq import DGPQ, DGPQConfig, argmax_random_ties
+from trl_dgpq.qhat import LipschitzQ
+
+D = torch.float64
+
+
+def t(*v):
+    return torch.tensor(v[0] if len(v) == 1 else v, dtype=D)
+
+
+# ---------------------------------------------------------------- Q̂ (Eq. 7)
+def test_eq7_values_and_vmax_cap():
+    q = LipschitzQ(1, 2, 2, lipschitz=2.0, v_max=2.5)
+    assert torch.equal(q(t([0.3, 0.3])), t([[2.5, 2.5]]))  # empty: V_max everywhere
+    q.insert(t([[0.5, 0.5]]), torch.tensor([0]), t([1.0]), torch.tensor([True]))
+    for x, expect in [((0.5, 0.5), 1.0), ((0.7, 0.5), 1.4), ((0.6, 0.4), 1.4), ((0.9, 0.9), 2.5)]:
+        v = q(t([x]))
+        assert v[0, 0].item() == pytest.approx(expect)       # min(V_max, mu + L |x - s|_1)
+        assert v[0, 1].item() == 2.5                           # other action untouched
+    q2 = LipschitzQ(1, 1, 2, lipschitz=2.0, v_max=9.0, metric="l2")
+    q2.insert(t([[0.0, 0.0]]), torch.tensor([0]), t([1.0]), torch.tensor([True]))
+    assert q2(t([[0.3, 0.4]])).item() == pytest.approx(1.0 + 2.0 * 0.5)
+
+
+def test_insert_prunes_only_dominated_pairs_of_the_same_action():
+    q = LipschitzQ(1, 2, 2, lipschitz=2.0, v_max=10.0, capacity=2)
+    one, a0, a1 = torch.tensor([True]), torch.tensor([0]), torch.tensor([1])
+    q.insert(t([[0.5, 0.5]]), a0, t([1.0]), one)
+    q.insert(t([[0.5, 0.5]]), a1, t([5.0]), one)
+    q.insert(t([[0.9, 0.9]]), a0, t([0.9]), one)  # 0.9 + 2*0.8 > 1: keeps (0.5, 0.5)
+    assert q.size().item() == 3
+    q.insert(t([[0.6, 0.5]]), a1, t([0.0]), one)  # dominates action 1's pair only
+    assert q.valid[0, :, 0].sum().item() == 2 and q.valid[0, :, 1].sum().item() == 1
+    q.insert(t([[0.6, 0.5]]), a0, t([0.5]), one)  # 0.5 + 2*0.1 <= 1 prunes (0.5,0.5); 0.5+2*0.7 > 0.9 keeps (0.9,0.9)
+    mus = sorted(q.mu[0, :, 0][q.valid[0, :, 0]].tolist())
+    assert mus == [0.5, 0.9]
+    assert q(t([[0.5, 0.5]]))[0, 0].item() == pytest.approx(0.7)
+    q.insert(t([[0.1, 0.9]]), a0, t([0.2]), one)  # fills a third slot of action 0: capacity grows
+    assert q.capacity >= 3 and q.valid[0, :, 0].sum().item() == 3
+
+
+def test_masked_insert_touches_only_selected_seeds():
+    q = LipschitzQ(3, 2, 1, lipschitz=1.0, v_max=4.0)
+    q.insert(t([0.5], [0.5], [0.5]), torch.tensor([0, 1, 0]), t(1.0, 1.0, 1.0), torch.tensor([True, False, True]))
+    assert q.size().tolist() == [1, 0, 1]
+
+
+# ---------------------------------------------------------------- step 1
+def test_ties_are_uniform_from_the_seed_stream():
+    q = torch.zeros(4000, 4, dtype=D)
+    counts = torch.bincount(argmax_random_ties(q, torch.rand(4000, 4, dtype=D)), minlength=4)
+    assert (counts > 850).all() and (counts < 1150).all()
+    q[:, 2] = 1.0
+    assert (argmax_random_ties(q, torch.rand(4000, 4, dtype=D)) == 2).all()
+
+
+# ---------------------------------------------------------------- steps 3-6
+def agent_1d(**kw):
+    cfg = dict(gamma=0.5, lipschitz=1.0, v_max=10.0, sigma_tol2=0.1, eps1=0.01, noise_var=0.1,
+               lengthscale=0.1, outputscale=1.0, gp="exact")
+    return DGPQ(DGPQConfig(**{**cfg, **kw}), seeds=[0], state_dim=1, num_actions=2)
+
+
+def step(agent, s, a, r, s_next, terminal=False):
+    return agent.observe(t([[s]]), torch.tensor([a]), t([r]), t([[s_next]]), torch.tensor([terminal]))
+
+
+def test_q_target_bootstraps_on_qhat_except_at_terminal():
+    ag = agent_1d()
+    assert ag.q_target(t([1.0]), t([[0.2]]), torch.tensor([False])).item() == pytest.approx(1.0 + 0.5 * 10.0)
+    assert ag.q_target(t([1.0]), t([[0.2]]), torch.tensor([True])).item() == pytest.approx(1.0)
+
+
+def test_one_confident_sample_overwrites_qhat_and_resets_every_gp():
+    ag = agent_1d()
+    out = step(ag, 0.4, 1, 5.0, 0.5)          # q = 5 + 0.5*10 = 10 = Q̂: GP learns, no overwrite
+    assert out["learn"].item() and not out["update"].item()
+    assert ag.gp.size.tolist() == [[0, 1]]
+    out = step(ag, 0.4, 1, 5.0, 0.5)          # sigma1^2 = 0.0909 <= sigma_tol2: the gate blocks the add
+    assert not out["learn"].item() and ag.gp.size.tolist() == [[0, 1]]
+    out = step(ag, 0.5, 0, 1.0, 0.6)          # q = 6, Q̂ = 10: sigma1^2 = 1 > 0.1 >= sigma2^2 = 1/11
+    mean = 10.0 + (6.0 - 10.0) / 1.1           # prior mean Q̂ + GP residual mean
+    assert out["learn"].item() and out["update"].item()
+    assert out["var2"].item() == pytest.approx(1 - 1 / 1.1)
+    assert ag.qhat(t([[0.5]]))[0, 0].item() == pytest.approx(mean + 0.01)   # mean + eps1
+    assert ag.qhat(t([[0.5]]))[0, 1].item() == 10.0
+    assert ag.gp.size.tolist() == [[0, 0]]     # every action's GP emptied
+    assert ag.qhat_updates.item() == 1
+
+
+def test_sigma_tol2_delays_the_update_until_the_gp_is_confident():
+    ag = agent_1d(sigma_tol2=0.05)             # one sample leaves 0.0909, two leave 0.0476
+    out = step(ag, 0.5, 0, 1.0, 0.6)
+    assert out["learn"].item() and not out["update"].item()
+    out = step(ag, 0.5, 0, 1.0, 0.6)
+    assert out["update"].item()
+    mean = 10.0 + 2 * (6.0 - 10.0) / 2.1
+    assert ag.qhat(t([[0.5]]))[0, 0].item() == pytest.approx(mean + 0.01)
+
+
+def test_overwrite_needs_a_value_2eps1_below_qhat():
+    ag = agent_1d(eps1=0.5)                    # 2 eps1 = 1 > Q̂ - mean = (10 - 9)/1.1
+    out = step(ag, 0.5, 0, 4.0, 0.6)           # q = 9
+    assert out["learn"].item() and not out["update"].item()
+    ag = agent_1d(eps1=0.4)                    # 2 eps1 = 0.8 < 0.909
+    assert step(ag, 0.5, 0, 4.0, 0.6)["update"].item()
+
+
+def test_inactive_seeds_learn_nothing():
+    ag = DGPQ(DGPQConfig(gp="exact"), seeds=[0, 1], state_dim=1, num_actions=2)
+    out = ag.observe(t([0.5], [0.5]), torch.tensor([0, 0]), t(-1.0, -1.0), t([0.6], [0.6]),
+                     torch.tensor([False, False]), active=torch.tensor([False, True]))
+    assert out["learn"].tolist() == [False, True]
+    assert ag.qhat.size().tolist() == [0, 1]
+
+
+# ---------------------------------------------------------------- Section 5
+def test_section5_reproduces_the_report_values():
+    eps1, tol = section5(eps=1.0, delta=0.96, gamma=0.01, r_max=2.0, lipschitz=9.0, num_actions=4, noise_var=0.1)
+    assert eps1 == pytest.approx(0.33)
+    assert tol == pytest.approx(3.05e-4, rel=0.01)
+    with pytest.raises(ValueError, match="gamma"):
+        section5(1.0, 0.96, 1.0, 2.0, 9.0, 4, 0.1)
+    cfg = DGPQConfig(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0, lipschitz=9.0).resolve(4)
+    assert math.isclose(cfg.sigma_tol2, tol) and math.isclose(cfg.eps1, eps1)
+
+
+@pytest.mark.parametrize("bad,match", [(dict(gamma=1.5), "gamma"), (dict(noise_var=-0.1), "noise_var"),
+                                       (dict(gp="gpytorch"), "gp"), (dict(metric="l3"), "metric"),
+                                       (dict(sigma_tol2=None), "Section 5"), (dict(budget=0), "budget")])
+def test_config_rejects_bad_values(bad, match):
+    with pytest.raises(ValueError, match=match):
+        DGPQConfig(**bad).resolve(4)

@@ -1,0 +1,151 @@
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import torch
+from torchrl.envs.utils import check_env_specs
+
+from collectors.experiment import TIMING_COLUMNS, parse_seeds, resolve_config, run_experiment
+from collectors.online import OnlineCollector
+from envs import SquareEnv
+from trl_dgpq.rng import SeedStreams, splitmix64, splitmix64_reference
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_specs_and_dynamics():
+    env = SquareEnv(seeds=[0, 1, 2])
+    check_env_specs(env)
+    td = env.reset()
+    assert torch.equal(td["observation"], torch.zeros(3, 2, dtype=torch.float64))
+    td["action"] = torch.tensor([0, 2, 1])  # north, east, south (clipped at 0)
+    nxt = env.step(td)["next"]
+    obs = nxt["observation"]
+    assert 0.09 <= obs[0, 1] <= 0.11 and obs[0, 0] == 0
+    assert 0.09 <= obs[1, 0] <= 0.11 and obs[1, 1] == 0
+    assert torch.equal(obs[2], torch.zeros(2, dtype=torch.float64))
+    d = torch.linalg.vector_norm(torch.tensor([1.0, 1.0], dtype=torch.float64) - obs, dim=-1)
+    torch.testing.assert_close(nxt["reward"][:, 0], 2 - d)
+
+
+def test_goal_terminates_and_cap_truncates():
+    env = SquareEnv(seeds=[0], max_steps=30)
+    td = env.reset()
+    for i in range(30):
+        td["action"] = torch.tensor([0 if i % 2 else 2])  # zig-zag to (1, 1)
+        td = env.step(td)
+        if td["next", "done"].item():
+            break
+        td = td["next"]
+    assert td["next", "terminated"].item() and not td["next", "truncated"].item()
+    env = SquareEnv(seeds=[0], max_steps=3, reward="paper")
+    td = env.rollout(10, break_when_any_done=True)
+    assert td.shape[-1] == 3 and td["next", "truncated"][0, -1].item() and not td["next", "terminated"].any()
+    assert (td["next", "reward"] == -1).all()
+
+
+def test_partial_reset_touches_only_masked_seeds():
+    env = SquareEnv(seeds=[0, 1])
+    td = env.reset()
+    td["action"] = torch.tensor([0, 0])
+    td = env.step_mdp(env.step(td))
+    before = env.pos.clone()
+    td["_reset"] = torch.tensor([[True], [False]])
+    out = env.reset(td)
+    assert torch.equal(env.pos[0], torch.zeros(2, dtype=torch.float64))
+    assert torch.equal(env.pos[1], before[1]) and torch.equal(out["observation"][1], before[1])
+
+
+def test_rng_matches_reference_and_is_batch_invariant():
+    z = torch.tensor([0, 1, 2 ** 40 + 5, -5, 2 ** 63 - 1])
+    got = [v & (2 ** 64 - 1) for v in splitmix64(z).tolist()]
+    assert got == [splitmix64_reference(v & (2 ** 64 - 1)) for v in z.tolist()]
+    alone, batch = SeedStreams([3], stream=2), SeedStreams([0, 3, 7], stream=2)
+    for _ in range(SeedStreams.BLOCK + 5):  # across a buffer refill
+        assert torch.equal(alone.uniform(4)[0], batch.uniform(4)[1])
+    u = SeedStreams(list(range(50))).uniform(200)
+    assert 0.45 < u.mean() < 0.55 and u.min() >= 0 and u.max() < 1
+
+
+def test_truncation_is_not_terminal_for_the_learner():
+    class Spy:
+        def __init__(self):
+            self.terminal = []
+
+        def act(self, s):
+            return torch.zeros(s.shape[0], dtype=torch.long)
+
+        def observe(self, s, a, r, s_next, terminal, active):
+            self.terminal.append(terminal.clone())
+
+        def episode_stats(self):
+            return {}
+
+    spy = Spy()
+    df = OnlineCollector(SquareEnv(seeds=[0, 1], max_steps=4), spy, episodes=2, progress=False).run()
+    assert len(spy.terminal) == 8 and not torch.stack(spy.terminal).any()
+    assert (df.steps == 4).all() and not df.terminated.any() and len(df) == 4
+
+
+def small(seeds, episodes=6, **agent):
+    return resolve_config("square", "shaped", seeds, episodes, agent=agent)
+
+
+def drop_timing(df):
+    return df.drop(columns=list(TIMING_COLUMNS))
+
+
+def test_tiny_rollout_learns_and_records_every_episode():
+    df = run_experiment(small([0, 1, 2, 3]), progress=False)
+    assert len(df) == 24 and set(df.seed) == {0, 1, 2, 3}
+    for col in ("seed", "episode", "steps", "return", "terminated", "wall_s", "cpu_s", "qhat_size", "qhat_updates"):
+        assert col in df
+    assert df.terminated.all() and (df.steps < 200).all()
+    assert df[df.episode >= 3].steps.median() <= 25  # learns the ~17-step path fast
+    assert (df.groupby("seed").qhat_updates.diff().dropna() >= 0).all()
+
+
+def test_determinism_and_batch_composition_invariance():
+    a = drop_timing(run_experiment(small(list(range(8))), progress=False))
+    b = drop_timing(run_experiment(small(list(range(8))), progress=False))
+    pd.testing.assert_frame_equal(a, b)
+    alone = drop_timing(run_experiment(small([3]), progress=False)).reset_index(drop=True)
+    within = a[a.seed == 3].reset_index(drop=True)
+    pd.testing.assert_frame_equal(alone, within, check_exact=False, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("gp", ["exact", "sparse"])
+def test_backends_run_the_report_and_paper_presets(gp):
+    for preset in ("report", "paper"):
+        df = run_experiment(resolve_config("square", preset, [0], 1, agent=dict(gp=gp, budget=20)), progress=False)
+        assert len(df) == 1 and 1 <= df.steps[0] <= 200
+
+
+def test_parse_seeds():
+    assert parse_seeds("3") == [0, 1, 2]
+    assert parse_seeds("3-5") == [3, 4, 5]
+    assert parse_seeds("1,5,9") == [1, 5, 9]
+    for bad in ("0", "5-2", "1,1", "x", "-3"):
+        with pytest.raises(ValueError):
+            parse_seeds(bad)
+
+
+def test_train_cli(tmp_path, capsys):
+    out = tmp_path / "run"
+    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "--seeds", "2", "--episodes", "2",
+           "--out", str(out), "--no-progress"]
+    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    df = pd.read_csv(out / "episodes.csv")
+    assert list(df.seed) == [0, 0, 1, 1] and (out / "config.json").is_file()
+    # Bad values: a clean argparse error (exit 2), never an exception escaping main().
+    spec = importlib.util.spec_from_file_location("train", ROOT / "scripts" / "train.py")
+    train = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(train)
+    for bad, msg in ((["--noise-var", "-1"], "noise_var"), (["--preset", "nope"], "preset"),
+                     (["--gamma", "2"], "gamma"), (["--seeds", "5-2"], "seeds"), (["--budget", "0"], "budget")):
+        with pytest.raises(SystemExit) as exc:
+            train.main(bad + ["--out", str(tmp_path / "x")])
+        assert exc.value.code == 2 and msg in capsys.readouterr().err
