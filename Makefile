@@ -14,13 +14,15 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/python scripts/bench.py gp --quick
+	$(BIN)/python scripts/train.py
+	$(BIN)/python scripts/plot.py
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
 
 bench: $(STAMP)
 	$(BIN)/python scripts/bench.py gp
+	$(BIN)/python scripts/bench.py dgpq
 
 clean:
 	rm -rf $(VENV) runs bench-*.json

@@ -2,6 +2,7 @@
 """Figures of a run (or of several runs, overlaid), from OUT/episodes.csv.
 
     python scripts/plot.py runs/square-shaped
+    python scripts/plot.py                      # the newest folder under runs/
     python scripts/plot.py runs/a runs/b --labels rbf manifold --out cmp/
 
 Writes into the (first) run folder, or --out:
@@ -62,11 +63,16 @@ def plot_runs(runs, labels, out: Path, logy_steps: bool = True) -> list:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("runs", nargs="+", help="run folders holding episodes.csv")
+    p.add_argument("runs", nargs="*", help="run folders holding episodes.csv (default: newest under runs/)")
     p.add_argument("--labels", nargs="+", default=None)
     p.add_argument("--out", default=None, help="folder for the PNGs (default: the first run folder)")
     p.add_argument("--linear", action="store_true", help="linear y axis for steps")
     args = p.parse_args(argv)
+    if not args.runs:
+        found = sorted(Path("runs").glob("*/episodes.csv"), key=lambda f: f.stat().st_mtime)
+        if not found:
+            p.error("no run folder given and none found under runs/")
+        args.runs = [str(found[-1].parent)]
     for r in args.runs:
         if not (Path(r) / "episodes.csv").is_file():
             p.error(f"{r}/episodes.csv not found (run scripts/train.py --out {r} first)")

@@ -36,13 +36,13 @@ def test_insert_prunes_only_dominated_pairs_of_the_same_action():
     q.insert(t([[0.9, 0.9]]), a0, t([0.9]), one)  # 0.9 + 2*0.8 > 1: keeps (0.5, 0.5)
     assert q.size().item() == 3
     q.insert(t([[0.6, 0.5]]), a1, t([0.0]), one)  # dominates action 1's pair only
-    assert q.valid[0, :, 0].sum().item() == 2 and q.valid[0, :, 1].sum().item() == 1
+    assert q.valid[0, 0].sum().item() == 2 and q.valid[0, 1].sum().item() == 1
     q.insert(t([[0.6, 0.5]]), a0, t([0.5]), one)  # 0.5 + 2*0.1 <= 1 prunes (0.5,0.5); 0.5+2*0.7 > 0.9 keeps (0.9,0.9)
-    mus = sorted(q.mu[0, :, 0][q.valid[0, :, 0]].tolist())
+    mus = sorted(q.mu[0, 0][q.valid[0, 0]].tolist())
     assert mus == [0.5, 0.9]
     assert q(t([[0.5, 0.5]]))[0, 0].item() == pytest.approx(0.7)
     q.insert(t([[0.1, 0.9]]), a0, t([0.2]), one)  # fills a third slot of action 0: capacity grows
-    assert q.capacity >= 3 and q.valid[0, :, 0].sum().item() == 3
+    assert q.capacity >= 3 and q.valid[0, 0].sum().item() == 3
 
 
 def test_masked_insert_touches_only_selected_seeds():

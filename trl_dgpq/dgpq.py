@@ -130,7 +130,8 @@ class DGPQ:
         self.rng = SeedStreams(seeds, stream=TIE_STREAM, device=device)
         self.qhat_updates = torch.zeros(self.S, dtype=torch.long, device=device)
         self.gp_adds = torch.zeros(self.S, dtype=torch.long, device=device)
-        self._memo = (None, -1, None)
+        self._memo = (None, -1, None)  # (state tensor, Q̂ version, Q̂ values)
+        self._seeds = torch.arange(self.S, device=device)
 
     def qhat_values(self, s: torch.Tensor) -> torch.Tensor:
         """Q̂_a(s) for all actions, (S, A). Memoised on the state tensor and Q̂'s version:
@@ -164,7 +165,15 @@ class DGPQ:
 
     # Step 6
     def update_qhat(self, s, a, mu, mask) -> None:
+        m_s, m_version, m_q = self._memo
         self.qhat.insert(s, a, mu, mask)
+        if m_s is not None and m_version == self.qhat.version - 1:
+            # Pairs pruned by the insert were dominated by the new one, so the memoised
+            # Q̂(s_{t+1}) only needs min(old, mu + L d(s_{t+1}, s_t)) for the new pair.
+            new = torch.where(mask, self.qhat.bound(m_s, s, mu), torch.inf).clamp_max(self.cfg.v_max)
+            q = m_q.clone()
+            q[self._seeds, a] = torch.minimum(m_q[self._seeds, a], new)
+            self._memo = (m_s, self.qhat.version, q)
         self.gp.reset(mask[:, None].expand(self.S, self.A))  # every action's GP of those seeds
         self.qhat_updates += mask
 

@@ -3,10 +3,9 @@
 For each seed and action a, Q̂ stores pairs (s_i, mu_i) and answers
     Q̂_a(s) = min(V_max, min_i [mu_i + L_Q * d(s, s_i)]).
 An empty Q̂_a is V_max everywhere. Storage is ``capacity`` slots per seed and
-action with a validity mask, laid out ``(S, capacity, A, ...)`` so that the used
-slots of a seed are one contiguous block and one ``cdist`` evaluates every action
-at once. Inserting into a full row doubles the capacity (documented growth, a
-copy, amortised O(1)).
+action, laid out ``(S, A, capacity, ...)``; an unused slot holds mu = +inf.
+Inserting into a full row doubles the capacity (documented growth, a copy,
+amortised O(1)).
 """
 from __future__ import annotations
 
@@ -38,29 +37,41 @@ class LipschitzQ:
         self.S, self.A, self.dim = num_seeds, num_actions, dim
         self.lipschitz, self.v_max, self.metric = float(lipschitz), float(v_max), metric
         kw = dict(dtype=dtype, device=device)
-        self.s = torch.zeros(num_seeds, capacity, num_actions, dim, **kw)
-        self.mu = torch.zeros(num_seeds, capacity, num_actions, **kw)
-        self.valid = torch.zeros(num_seeds, capacity, num_actions, dtype=torch.bool, device=device)
-        self.width = 0  # slots [0, width) may be valid in some row; the rest are unused
+        self.s = torch.zeros(num_seeds, num_actions, capacity, dim, **kw)
+        # Unused slots hold mu = +inf: Eq. 7 needs no mask (mu + L d is +inf there).
+        self.mu = torch.full((num_seeds, num_actions, capacity), torch.inf, **kw)
+        self.width = 0  # slots [0, width) may be used in some row; the rest are unused
         self.version = 0  # bumped by every change, for callers that memoise values
-        self._seeds = torch.arange(num_seeds, device=device)
 
     @property
     def capacity(self) -> int:
-        return self.mu.shape[1]
+        return self.mu.shape[-1]
+
+    @property
+    def valid(self) -> torch.Tensor:
+        """Which slots hold a pair, (S, A, capacity)."""
+        return torch.isfinite(self.mu)
 
     def size(self) -> torch.Tensor:
         """Stored pairs per seed, (S,)."""
-        return self.valid.flatten(1).sum(1)
+        return torch.isfinite(self.mu[..., :self.width]).flatten(1).sum(1)
 
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
         """Q̂_a(x) for every action: x ``(S, dim)`` -> ``(S, A)``."""
-        w = self.width
-        if w == 0:
+        if self.width == 0:
             return x.new_full((self.S, self.A), self.v_max)
-        d = distance(x, self.s[:, :w].reshape(self.S, w * self.A, self.dim), self.metric)
-        bound = torch.where(self.valid[:, :w], self.mu[:, :w] + self.lipschitz * d.view(self.S, w, self.A), torch.inf)
-        return bound.amin(1).clamp_max(self.v_max)
+        # One cdist over the (S*A) rows of stored states; the reduction then runs over
+        # the contiguous last dim. cdist copies a strided input, so a mostly used
+        # storage is passed whole (unused slots have mu = +inf and drop out).
+        w = self.capacity if 2 * self.width > self.capacity else self.width
+        s = self.s.view(self.S * self.A, self.capacity, self.dim)[:, :w]
+        xs = x[:, None, :].expand(self.S, self.A, self.dim).reshape(self.S * self.A, self.dim)
+        d = distance(xs, s, self.metric).view(self.S, self.A, w)
+        return torch.add(self.mu[..., :w], d, alpha=self.lipschitz).amin(-1).clamp_max(self.v_max)
+
+    def bound(self, x: torch.Tensor, s: torch.Tensor, mu: torch.Tensor) -> torch.Tensor:
+        """mu + L d(x, s) for one pair per seed: x, s ``(S, dim)``, mu ``(S,)``."""
+        return torch.add(mu, distance(x, s[:, None, :], self.metric)[:, 0], alpha=self.lipschitz)
 
     def insert(self, x: torch.Tensor, a: torch.Tensor, mu: torch.Tensor, mask: torch.Tensor) -> None:
         """Insert (x, mu) into Q̂_a for the seeds in ``mask`` and prune, per action, every
@@ -72,24 +83,20 @@ class LipschitzQ:
         x, a, mu = x[rows], a[rows], mu[rows]
         w = self.width
         if w:
-            s_a, mu_a, valid_a = self.s[rows, :w, a], self.mu[rows, :w, a], self.valid[rows, :w, a]
-            redundant = valid_a & (mu[:, None] + self.lipschitz * distance(x, s_a, self.metric) <= mu_a)
-            self.valid[rows, :w, a] = valid_a & ~redundant
-        free = ~self.valid[rows, :, a]
-        if not free.any(-1).all():
+            s_a, mu_a = self.s[:, :, :w][rows, a], self.mu[:, :, :w][rows, a]
+            redundant = torch.add(mu[:, None], distance(x, s_a, self.metric), alpha=self.lipschitz) <= mu_a
+            self.mu[:, :, :w][rows, a] = mu_a.masked_fill(redundant, torch.inf)
+        if w == self.capacity and not torch.isinf(self.mu[rows, a]).any(-1).all():
             self._grow()
-            free = ~self.valid[rows, :, a]
+        free = torch.isinf(self.mu[:, :, :w + 1][rows, a])  # slot w is free in every row
         slot = free.int().argmax(-1)  # first free slot
-        self.s[rows, slot, a] = x
-        self.mu[rows, slot, a] = mu
-        self.valid[rows, slot, a] = True
-        self.width = max(self.width, int(slot.max()) + 1)
+        self.s[rows, a, slot] = x
+        self.mu[rows, a, slot] = mu
+        self.width = max(w, int(slot.max()) + 1)
 
     def _grow(self) -> None:
-        cap = self.capacity
-        pad = lambda t: torch.cat((t, torch.zeros_like(t)), 1)  # noqa: E731
-        self.s, self.mu, self.valid = pad(self.s), pad(self.mu), pad(self.valid)
-        assert self.capacity == 2 * cap
+        pad = lambda t, fill: torch.cat((t, torch.full_like(t, fill)), 2)  # noqa: E731
+        self.s, self.mu = pad(self.s, 0), pad(self.mu, torch.inf)
 
     def state_dict(self):
-        return {"s": self.s, "mu": self.mu, "valid": self.valid}
+        return {"s": self.s, "mu": self.mu}

@@ -181,7 +181,8 @@ class BatchedGP(nn.Module):
             return {k: getattr(self, k) for k in self._state_names}
         if width is None:
             return {k: getattr(self, k).index_select(0, rows) for k in self._state_names}
-        return {k: getattr(self, k)[rows] if k == "n" else getattr(self, k)[rows, :width]
+        # index_select on the narrowed view copies only what is used (t[rows, :w] copies whole rows first)
+        return {k: getattr(self, k)[rows] if k == "n" else getattr(self, k)[:, :width].index_select(0, rows)
                 for k in self._state_names}
 
     def _write(self, rows: torch.Tensor, st: State, width: Optional[int] = None) -> None:
