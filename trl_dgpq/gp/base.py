@@ -182,7 +182,7 @@ class BatchedGP(nn.Module):
         if width is None:
             return {k: getattr(self, k).index_select(0, rows) for k in self._state_names}
         # index_select on the narrowed view copies only what is used (t[rows, :w] copies whole rows first)
-        return {k: getattr(self, k)[rows] if k == "n" else getattr(self, k)[:, :width].index_select(0, rows)
+        return {k: getattr(self, k)[rows] if k == "n" else self._narrow(k, getattr(self, k), width).index_select(0, rows)
                 for k in self._state_names}
 
     def _write(self, rows: torch.Tensor, st: State, width: Optional[int] = None) -> None:
@@ -190,13 +190,17 @@ class BatchedGP(nn.Module):
             if width is None or k == "n":
                 getattr(self, k).index_copy_(0, rows, st[k])
             else:
-                getattr(self, k)[rows, :width] = st[k]
+                self._narrow(k, getattr(self, k), width)[rows] = st[k]
 
     def _width(self, n: torch.Tensor, adding: bool = False) -> Optional[int]:
         """How many leading slots (dim 1 of every state tensor but n) GPs with counts
         ``n`` use, so that a gather copies only those; None = all. Backends whose
         slots beyond the count are all zero may override this."""
         return None
+
+    def _narrow(self, name: str, t: torch.Tensor, width: int) -> torch.Tensor:
+        """The view of state tensor ``name`` that covers ``width`` slots."""
+        return t[:, :width]
 
     def _clear(self, rows: torch.Tensor) -> None:
         """Empty the GPs ``rows``."""

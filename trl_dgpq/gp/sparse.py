@@ -3,12 +3,14 @@
 State per GP, with M = budget + 1 slots (one spare slot holds a new basis vector
 until the deletion step decides which one goes): basis vectors BV ``(M, d)``,
 alpha ``(M,)``, C ``(M, M)``, Q = K_BV^-1 ``(M, M)`` and the count n. C and Q are
-stored side by side as one ``(M, 2M)`` tensor CQ = [C, Q]: both are symmetric, so
-the row vector ``k^T CQ`` is ``[(C k)^T, (Q k)^T]`` in one row-major pass (5x faster
-than a batched matrix-vector product), and each step's updates of both are a
-single in-place low-rank ``baddbmm_`` (memory traffic, not flops, is the cost). Unused slots
-are all zero, which makes every padded product vanish, so GPs of different sizes
-update together:
+stored interleaved as one ``(M, 2M)`` tensor, ``CQ[i, 2j] = C_ij``,
+``CQ[i, 2j+1] = Q_ij``. Both are symmetric, so the row vector ``k^T CQ`` holds
+``C k`` and ``Q k`` from one row-major pass (5x faster than a batched
+matrix-vector product); each step's updates of both are one in-place rank-2
+``baddbmm_``; and a GP using w slots lives in the contiguous-row block
+``CQ[:w, :2w]``, so small GPs cost O(w^2), not O(M^2). Unused slots are all zero,
+which makes every padded product vanish, so GPs of different sizes update
+together:
     mean(x) = k_x^T alpha,    var(x) = k(x, x) + k_x^T C k_x.
 Cost O(m^2) per point, flat in the number of points seen. The equations are those
 of SPEC section 2.
@@ -51,11 +53,11 @@ class SparseOnlineGP(BatchedGP):
 
     @property
     def C(self) -> torch.Tensor:
-        return self.CQ[:, :, : self.budget + 1]
+        return self.CQ[:, :, 0::2]
 
     @property
     def Q(self) -> torch.Tensor:
-        return self.CQ[:, :, self.budget + 1:]
+        return self.CQ[:, :, 1::2]
 
     def _empty_state(self, k: int) -> State:
         M, kw = self.budget + 1, dict(dtype=self.dtype, device=self.device)
@@ -67,15 +69,18 @@ class SparseOnlineGP(BatchedGP):
         )
 
     def _width(self, n: torch.Tensor, adding: bool = False) -> int:
-        # Slots beyond n are zero, and rows [:w] of CQ hold all of C and Q's non-zeros.
+        # Slots beyond n are zero: the block CQ[:w, :2w] holds all of C and Q's non-zeros.
         M = self.budget + 1
         return max(1, min(M, int(n.max()) + int(adding)))
+
+    def _narrow(self, name: str, t: torch.Tensor, width: int) -> torch.Tensor:
+        return t[:, :width, :2 * width] if name == "CQ" else t[:, :width]
 
     def _clear(self, rows: torch.Tensor) -> None:
         w = self._width(self.n[rows])  # zeroing the used slots restores the empty state
         self.BV[rows, :w] = 0
         self.alpha[rows, :w] = 0
-        self.CQ[rows, :w] = 0
+        self.CQ[:, :w, :2 * w][rows] = 0
         self.n[rows] = 0
 
     def _kx(self, st: State, x: torch.Tensor) -> torch.Tensor:
@@ -85,10 +90,11 @@ class SparseOnlineGP(BatchedGP):
         return self.kernel(st["BV"], x) * used[..., None]
 
     def _predict(self, st: State, xq: torch.Tensor):
-        kx = self._kx(st, xq)
-        M = kx.shape[1]
+        kx = self._kx(st, xq)                                          # (k, w, q)
+        k, w, q = kx.shape
         mean = (kx * st["alpha"][..., None]).sum(-2)
-        var = self.kernel.diag(xq) + (kx.mT * torch.bmm(kx.mT, st["CQ"][:, :, :M])).sum(-1)
+        Ck = torch.bmm(kx.mT, st["CQ"][:, :w, :2 * w]).view(k, q, w, 2)[..., 0]  # (k, q, w)
+        var = self.kernel.diag(xq) + (kx.mT * Ck).sum(-1)
         return mean, var
 
     # ------------------------------------------------------------- updates
@@ -98,8 +104,8 @@ class SparseOnlineGP(BatchedGP):
         M = self.budget + 1
         kx = self._kx(st, x[:, None])                                  # (k, w, 1)
         kxx = self.kernel.diag(x)                                      # (k,)
-        CQk = torch.bmm(kx.mT, CQ)[:, 0]                               # [C k, Q k], (k, 2M)
-        Ck, e = CQk[:, :w], CQk[:, M:M + w]                            # zero beyond w
+        CQk = torch.bmm(kx.mT, CQ[:, :, :2 * w]).view(k, w, 2)         # (C k, Q k) interleaved
+        Ck, e = CQk[..., 0], CQk[..., 1]
         kx = kx[..., 0]
         mean = (kx * alpha).sum(-1)
         var = kxx + (kx * Ck).sum(-1)
@@ -122,10 +128,10 @@ class SparseOnlineGP(BatchedGP):
         e_hat = (e - unit) * ext
         inv_gamma = torch.where(extend, 1.0 / gamma.clamp_min(1e-300), 0.0)
         left = torch.stack((s, e_hat), -1)                             # (k, w, 2)
-        right = torch.zeros(k, 2, 2 * M, dtype=alpha.dtype, device=alpha.device)
-        right[:, 0, :w] = s * (r * coef)[:, None]
-        right[:, 1, M:M + w] = e_hat * inv_gamma[:, None]
-        CQ.baddbmm_(left, right)
+        right = torch.zeros(k, 2, w, 2, dtype=alpha.dtype, device=alpha.device)
+        right[:, 0, :, 0] = s * (r * coef)[:, None]                    # -> C columns
+        right[:, 1, :, 1] = e_hat * inv_gamma[:, None]                 # -> Q columns
+        CQ[:, :, :2 * w].baddbmm_(left, right.view(k, 2, 2 * w))
         # Posterior at x: k_x^T s is var (extension) or var - gamma (projection).
         u = torch.where(extend, var, var - gamma)
         cu = coef * u
@@ -145,8 +151,8 @@ class SparseOnlineGP(BatchedGP):
         """Index of the basis vector with the smallest KL score alpha^2/(Q_jj + C_jj)."""
         M = st["alpha"].shape[1]
         CQ = st["CQ"]
-        dc = CQ[:, :, :M].diagonal(dim1=-2, dim2=-1)
-        dq = CQ[:, :, M:].diagonal(dim1=-2, dim2=-1)
+        dc = CQ[:, :, 0::2].diagonal(dim1=-2, dim2=-1)
+        dq = CQ[:, :, 1::2].diagonal(dim1=-2, dim2=-1)
         score = st["alpha"].square() / (dq + dc)
         used = torch.arange(M, device=score.device) < st["n"][:, None]
         return torch.where(used, score, torch.inf).argmin(-1)
@@ -159,8 +165,8 @@ class SparseOnlineGP(BatchedGP):
         last = M - 1
         j = torch.where(which, j, torch.full_like(j, last))
         w = which.to(alpha.dtype)
-        CQs = CQ.gather(1, j[:, None, None].expand(k, 1, 2 * M))[:, 0]   # row j = [C*, Q*] (symmetry)
-        Cs, Qs = CQs[:, :M], CQs[:, M:]
+        CQs = CQ.gather(1, j[:, None, None].expand(k, 1, 2 * M))[:, 0].view(k, M, 2)  # row j (symmetry)
+        Cs, Qs = CQs[..., 0], CQs[..., 1]
         cs = Cs.gather(1, j[:, None])[:, 0]
         qs = Qs.gather(1, j[:, None])[:, 0]
         a_s = alpha.gather(1, j[:, None])[:, 0]
@@ -173,14 +179,14 @@ class SparseOnlineGP(BatchedGP):
         # C += Q*Q*^T/q* - (Q*+C*)(Q*+C*)^T/(q*+c*),  Q -= Q*Q*^T/q*: one rank-2 update.
         left = torch.stack((Qs, QCs), -1)                                    # (k, M, 2)
         a, b = Qs * (w / qs)[:, None], QCs * (-w / qc)[:, None]
-        right = torch.stack((torch.cat((a, -a), 1), torch.cat((b, torch.zeros_like(b)), 1)), 1)
-        CQ.baddbmm_(left, right)
+        right = torch.stack((torch.stack((a, -a), -1), torch.stack((b, torch.zeros_like(b)), -1)), 1)
+        CQ.baddbmm_(left, right.view(k, 2, 2 * M))
         # Move the last slot into the freed slot j, then clear the last slot.
         CQ.scatter_(1, j[:, None, None].expand(k, 1, 2 * M), CQ[:, last:, :].clone())
-        cols = torch.stack((j, j + M), 1)[:, None, :].expand(k, M, 2)
-        CQ.scatter_(2, cols, CQ[:, :, [last, 2 * M - 1]])
+        cols = torch.stack((2 * j, 2 * j + 1), 1)[:, None, :].expand(k, M, 2)
+        CQ.scatter_(2, cols, CQ[:, :, 2 * last:].clone())
         CQ[:, last, :] = 0
-        CQ[:, :, [last, 2 * M - 1]] = 0
+        CQ[:, :, 2 * last:] = 0
         alpha.scatter_(1, j[:, None], alpha[:, last:].clone())
         alpha[:, last] = 0
         BV.scatter_(1, j[:, None, None].expand(k, 1, BV.shape[-1]), BV[:, last:].clone())
