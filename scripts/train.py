@@ -29,7 +29,19 @@ AGENT_FLAGS = {
     "gamma": float, "lipschitz": float, "v_max": float, "sigma_tol2": float, "eps1": float,
     "eps": float, "delta": float, "r_max": float, "noise_var": float, "lengthscale": float,
     "outputscale": float, "metric": str, "gp": str, "budget": int, "novelty_tol": float,
+    "kernel": str, "kernel_hidden": tuple, "kernel_skip": bool, "kernel_train_every": int,
+    "kernel_min_points": int, "kernel_train_steps": int, "kernel_lr": float,
 }
+
+
+def widths(text: str):
+    try:
+        w = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        w = ()
+    if not w or min(w) < 1:
+        raise argparse.ArgumentTypeError(f"expected positive widths like 10 or 16,16, got {text!r}")
+    return w
 ENV_FLAGS = {"max_steps": int}
 
 
@@ -57,6 +69,16 @@ def make_parser() -> argparse.ArgumentParser:
     g.add_argument("--lengthscale", type=float, default=None, help="RBF bandwidth theta")
     g.add_argument("--outputscale", type=float, default=None, help="RBF amplitude s_f^2")
     g.add_argument("--metric", choices=["l1", "l2", "linf"], default=None)
+    k = p.add_argument_group("kernel")
+    k.add_argument("--kernel", choices=["rbf", "manifold"], default=None,
+                   help="manifold: RBF on MLP features trained by NLL (needs --gp exact)")
+    k.add_argument("--kernel-hidden", type=widths, default=None, help="hidden widths, e.g. 10 or 16,16")
+    k.add_argument("--kernel-skip", action=argparse.BooleanOptionalAction, default=None,
+                   help="features x + MLP(x) (default) or the plain MLP output")
+    k.add_argument("--kernel-train-every", type=int, default=None, help="train after this many new GP points")
+    k.add_argument("--kernel-min-points", type=int, default=None, help="... if the GP holds at least this many")
+    k.add_argument("--kernel-train-steps", type=int, default=None)
+    k.add_argument("--kernel-lr", type=float, default=None)
     e = p.add_argument_group("environment")
     e.add_argument("--max-steps", type=int, default=None, help="step cap per episode (truncation)")
     return p

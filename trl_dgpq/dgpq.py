@@ -20,17 +20,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, fields
-from typing import Optional, Sequence
+from typing import Optional, Sequence, Tuple
 
 import torch
 
 from .bounds import section5
-from .gp import ExactGP, RBFKernel, SparseOnlineGP
+from .gp import ExactGP, ManifoldKernel, RBFKernel, SparseOnlineGP
+from .gp.train import fit
 from .qhat import METRICS, LipschitzQ
 from .rng import SeedStreams
 
 GP_BACKENDS = {"exact": ExactGP, "sparse": SparseOnlineGP}
 TIE_STREAM = 1  # the agent's random stream id (the env uses others)
+KERNEL_STREAM = 3  # initial weights of manifold kernels
+KERNELS = ("rbf", "manifold")
 
 
 @dataclass
@@ -54,6 +57,13 @@ class DGPQConfig:
     budget: int = 100               # sparse GP basis vectors
     novelty_tol: float = 1e-3       # sparse GP novelty threshold
     capacity: int = 64              # initial storage (exact GP points, Q̂ pairs); grows
+    kernel: str = "rbf"             # "manifold": RBF on MLP features, trained by NLL (exact GP only)
+    kernel_hidden: Tuple[int, ...] = (10,)
+    kernel_skip: bool = True        # M(x) = x + MLP(x): starts as the RBF kernel
+    kernel_train_every: int = 20    # train a GP's kernel after this many new points ...
+    kernel_min_points: int = 5      # ... if it then holds at least this many
+    kernel_train_steps: int = 50    # Adam steps per training
+    kernel_lr: float = 0.01
 
     def resolve(self, num_actions: int) -> "DGPQConfig":
         """Validate, derive Section 5 values where missing; returns self."""
@@ -76,6 +86,19 @@ class DGPQConfig:
             bad(f"budget must be a positive integer, got {self.budget}")
         if not (finite(self.novelty_tol) and self.novelty_tol >= 0):
             bad(f"novelty_tol must be >= 0, got {self.novelty_tol}")
+        if self.kernel not in KERNELS:
+            bad(f"kernel must be one of {KERNELS}, got {self.kernel!r}")
+        self.kernel_hidden = tuple(int(h) for h in self.kernel_hidden)
+        if self.kernel == "manifold":
+            if self.gp != "exact":
+                bad("kernel 'manifold' trains on the GP's data, which only gp 'exact' keeps: use --gp exact")
+            if not self.kernel_hidden or min(self.kernel_hidden) < 1:
+                bad(f"kernel_hidden must be positive widths, got {self.kernel_hidden}")
+            for name in ("kernel_train_every", "kernel_min_points", "kernel_train_steps"):
+                if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
+                    bad(f"{name} must be a positive integer, got {getattr(self, name)}")
+            if not (finite(self.kernel_lr) and self.kernel_lr > 0):
+                bad(f"kernel_lr must be > 0, got {self.kernel_lr}")
         if self.sigma_tol2 is None or self.eps1 is None:
             if None in (self.eps, self.delta, self.r_max):
                 bad("give sigma_tol2 and eps1, or eps, delta and r_max to derive them (Section 5)")
@@ -101,9 +124,19 @@ class DGPQConfig:
         return asdict(self)
 
 
-def make_gp(cfg: DGPQConfig, dim: int, batch_shape, kernel=None, device=None):
-    """The GP backend named by ``cfg.gp`` with the config's kernel and noise."""
-    kernel = kernel if kernel is not None else RBFKernel(cfg.lengthscale, cfg.outputscale)
+def make_kernel(cfg: DGPQConfig, dim: int, seeds: Sequence[int], num_actions: int):
+    """The config's kernel; a manifold kernel gets one feature map per (seed, action)
+    GP, initialised from each seed's own random stream."""
+    if cfg.kernel == "rbf":
+        return RBFKernel(cfg.lengthscale, cfg.outputscale)
+    streams = SeedStreams(seeds, stream=KERNEL_STREAM)
+    uniform = lambda n, count: streams.uniform(num_actions * count).reshape(n, count)  # noqa: E731
+    return ManifoldKernel(len(seeds) * num_actions, dim, cfg.kernel_hidden, cfg.lengthscale, cfg.outputscale,
+                          skip=cfg.kernel_skip, uniform=uniform)
+
+
+def make_gp(cfg: DGPQConfig, dim: int, batch_shape, kernel, device=None):
+    """The GP backend named by ``cfg.gp`` with ``kernel`` and the config's noise."""
     extra = (dict(budget=cfg.budget, novelty_tol=cfg.novelty_tol) if cfg.gp == "sparse"
              else dict(capacity=cfg.capacity))
     return GP_BACKENDS[cfg.gp](kernel, cfg.noise_var, dim, batch_shape=batch_shape, device=device, **extra)
@@ -126,7 +159,11 @@ class DGPQ:
         self.S, self.A = len(seeds), num_actions
         self.qhat = LipschitzQ(self.S, num_actions, state_dim, cfg.lipschitz, cfg.v_max, cfg.metric,
                                capacity=cfg.capacity, device=device)
+        kernel = kernel if kernel is not None else make_kernel(cfg, state_dim, seeds, num_actions)
         self.gp = make_gp(cfg, state_dim, (self.S, num_actions), kernel, device)
+        self.trains_kernel = cfg.kernel == "manifold"
+        self.since_fit = torch.zeros(self.S, num_actions, dtype=torch.long, device=device)
+        self.kernel_fits = torch.zeros(self.S, dtype=torch.long, device=device)
         self.rng = SeedStreams(seeds, stream=TIE_STREAM, device=device)
         self.qhat_updates = torch.zeros(self.S, dtype=torch.long, device=device)
         self.gp_adds = torch.zeros(self.S, dtype=torch.long, device=device)
@@ -191,13 +228,30 @@ class DGPQ:
             return dict(learn=none, update=none)
         var1, mean2, var2, learn = self.learn_gp(s, q_t - qhat_sa, taken)
         self.gp_adds += learn
+        if self.trains_kernel:
+            self.train_kernel(taken & learn[:, None])
         # Step 6: converged (sigma1^2 > sigma_tol2 >= sigma2^2) to a value clearly below Q̂
         update = learn & (var2 <= self.cfg.sigma_tol2) & (-mean2 > 2 * self.cfg.eps1)
         if update.any():
             self.update_qhat(s, a, qhat_sa + mean2 + self.cfg.eps1, update)
         return dict(learn=learn, update=update, var1=var1, var2=var2, mean2=mean2, q_target=q_t)
 
+    def train_kernel(self, added: torch.Tensor) -> None:
+        """Manifold kernel: once a GP has taken ``kernel_train_every`` new points since its
+        last training and holds at least ``kernel_min_points``, fit its feature map and
+        hyperparameters to the (s, residual) pairs it holds by NLL, and rebuild it."""
+        self.since_fit += added
+        due = (self.since_fit >= self.cfg.kernel_train_every) & (self.gp.size >= self.cfg.kernel_min_points)
+        if due.any():
+            fit(self.gp, due, steps=self.cfg.kernel_train_steps, lr=self.cfg.kernel_lr,
+                min_points=self.cfg.kernel_min_points)
+            self.since_fit[due] = 0
+            self.kernel_fits += due.sum(-1)
+
     def episode_stats(self) -> dict:
         """Per-seed counters for the per-episode CSV, each (S,)."""
-        return dict(qhat_size=self.qhat.size(), qhat_updates=self.qhat_updates,
-                    gp_size=self.gp.size.sum(-1), gp_adds=self.gp_adds)
+        stats = dict(qhat_size=self.qhat.size(), qhat_updates=self.qhat_updates,
+                     gp_size=self.gp.size.sum(-1), gp_adds=self.gp_adds)
+        if self.trains_kernel:
+            stats["kernel_fits"] = self.kernel_fits
+        return stats

@@ -15,3 +15,7 @@ from .kernels import RBFKernel
 from .sparse import SparseOnlineGP
 
 __all__ = ["BatchedGP", "GPNumericalError", "ExactGP", "SparseOnlineGP", "RBFKernel"]
+from .manifold import ManifoldKernel  # noqa: E402
+from .train import fit  # noqa: E402
+
+__all__ += ["ManifoldKernel", "fit"]

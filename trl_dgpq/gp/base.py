@@ -53,7 +53,13 @@ class BatchedGP(nn.Module):
         if any(b < 1 for b in batch_shape):
             raise ValueError(f"batch_shape entries must be >= 1, got {tuple(batch_shape)}")
         self.kernel = kernel.to(dtype=dtype, device=device)
-        self.noise_var = noise_var
+        self.noise_var = noise_var  # the initial observation noise of every GP
+        # Kernels with one set of parameters per GP (ManifoldKernel) set per_gp = True
+        # and take the flat GP indices of the rows they are evaluated for.
+        self._per_gp = bool(getattr(kernel, "per_gp", False))
+        if self._per_gp and getattr(kernel, "num_gps", None) != math.prod(batch_shape):
+            raise ValueError(f"kernel has parameters for {getattr(kernel, 'num_gps', None)} GPs, "
+                             f"batch_shape {tuple(batch_shape)} needs {math.prod(batch_shape)}")
         self.dim = int(dim)
         self.batch_shape = batch_shape
         self.num_gps = math.prod(batch_shape)
@@ -61,6 +67,8 @@ class BatchedGP(nn.Module):
         self.device = torch.device(device) if device is not None else torch.device("cpu")
         for name, t in self._empty_state(self.num_gps).items():
             self.register_buffer(name, t)
+        # Per-GP noise (trainable by trl_dgpq.gp.train); survives reset().
+        self.register_buffer("noise", torch.full((self.num_gps,), noise_var, dtype=dtype, device=self.device))
 
     # ------------------------------------------------------------------ public
     @property
@@ -108,7 +116,7 @@ class BatchedGP(nn.Module):
         if gate is None:
             return None
         if rows is not None:  # unselected GPs report their prior
-            prior = self.kernel.diag(x)
+            prior = self._kdiag(None, x)
             res = (prior.clone(), torch.zeros_like(prior), prior.clone(),
                    torch.zeros(self.num_gps, dtype=torch.bool, device=self.device))
             if rows.numel():
@@ -136,7 +144,7 @@ class BatchedGP(nn.Module):
             mean, var = self._predict(self._state(), xq)
         else:
             mean = xq.new_zeros(self.num_gps, q)
-            var = self.kernel.diag(xq).clone()
+            var = self._kdiag(None, xq).clone()
             if rows.numel():
                 m, v = self._predict(self._state(rows, self._width(self.n[rows])), xq[rows])
                 mean[rows], var[rows] = m, v
@@ -178,12 +186,27 @@ class BatchedGP(nn.Module):
         """The state of all GPs (views), or a copy of the selected rows; with ``width``,
         only the first ``width`` slots along dim 1 (see ``_width``)."""
         if rows is None:
-            return {k: getattr(self, k) for k in self._state_names}
-        if width is None:
-            return {k: getattr(self, k).index_select(0, rows) for k in self._state_names}
-        # index_select on the narrowed view copies only what is used (t[rows, :w] copies whole rows first)
-        return {k: getattr(self, k)[rows] if k == "n" else self._narrow(k, getattr(self, k), width).index_select(0, rows)
-                for k in self._state_names}
+            st = {k: getattr(self, k) for k in self._state_names}
+        elif width is None:
+            st = {k: getattr(self, k).index_select(0, rows) for k in self._state_names}
+        else:
+            # index_select on the narrowed view copies only what is used (t[rows, :w] copies whole rows first)
+            st = {k: getattr(self, k)[rows] if k == "n" else self._narrow(k, getattr(self, k), width).index_select(0, rows)
+                  for k in self._state_names}
+        st["rows"] = rows  # which GPs, for per-GP kernels and noise (None = all)
+        return st
+
+    def _k(self, st: State, x1: torch.Tensor, x2: torch.Tensor) -> torch.Tensor:
+        """Kernel matrix for the GPs of ``st`` (x1, x2 with their flat leading dim)."""
+        return self.kernel(x1, x2, rows=st["rows"]) if self._per_gp else self.kernel(x1, x2)
+
+    def _kdiag(self, st: Optional[State], x: torch.Tensor) -> torch.Tensor:
+        rows = None if st is None else st["rows"]
+        return self.kernel.diag(x, rows=rows) if self._per_gp else self.kernel.diag(x)
+
+    def _noise(self, st: State) -> torch.Tensor:
+        """Observation noise of the GPs of ``st``, (k,)."""
+        return self.noise if st["rows"] is None else self.noise[st["rows"]]
 
     def _write(self, rows: torch.Tensor, st: State, width: Optional[int] = None) -> None:
         for k in self._state_names:

@@ -75,16 +75,17 @@ class ExactGP(BatchedGP):
         n = st["n"]
         m, L = self._block(st, int(n.max()) + 1)  # the used block plus the new row
         ar = torch.arange(m, device=n.device)
-        kx = self.kernel(st["X"][:, :m], x[:, None])[..., 0] * (ar < n[:, None])
+        kx = self._k(st, st["X"][:, :m], x[:, None])[..., 0] * (ar < n[:, None])
         # Identity padding keeps l zero beyond each GP's own n.
         l = torch.linalg.solve_triangular(L, kx[..., None], upper=False)[..., 0]
-        kxx = self.kernel.diag(x[:, None])[:, 0]
+        kxx = self._kdiag(st, x[:, None])[:, 0]
+        noise = self._noise(st)
         mean = (l * st["z"][:, :m]).sum(-1)
         var = kxx - l.square().sum(-1)
         learn = torch.ones_like(n, dtype=torch.bool) if gate is None else var > gate
         b = learn.nonzero().squeeze(-1)
         if b.numel():
-            d2 = self._jitter(var[b] + self.noise_var, kxx[b], learn)
+            d2 = self._jitter(var[b] + noise[b], kxx[b], noise[b], learn)
             d = d2.sqrt()
             nb, lb = n[b], l[b]
             lb[torch.arange(b.numel(), device=b.device), nb] = d
@@ -110,8 +111,8 @@ class ExactGP(BatchedGP):
             return cap, st["L"]
         return m, st["L"][:, :m, :m].contiguous()
 
-    def _jitter(self, d2, kxx, learn):
-        floor = 1e-12 * (kxx + self.noise_var)
+    def _jitter(self, d2, kxx, noise, learn):
+        floor = 1e-12 * (kxx + noise)
         bad = ~(d2 > floor)  # also catches NaN
         for j in JITTERS:
             if not bad.any():
@@ -126,12 +127,12 @@ class ExactGP(BatchedGP):
     def _predict(self, st: State, xq: torch.Tensor):
         n = st["n"]
         m = int(n.max()) if n.numel() else 0
-        kqq = self.kernel.diag(xq)
+        kqq = self._kdiag(st, xq)
         if m == 0:
             return torch.zeros_like(kqq), kqq.clone()
         m, L = self._block(st, m)
         ar = torch.arange(m, device=n.device)
-        kx = self.kernel(st["X"][:, :m], xq) * (ar < n[:, None])[..., None]  # (k, m, q)
+        kx = self._k(st, st["X"][:, :m], xq) * (ar < n[:, None])[..., None]  # (k, m, q)
         v = torch.linalg.solve_triangular(L, kx, upper=False)
         mean = (v * st["z"][:, :m, None]).sum(-2)
         var = kqq - v.square().sum(-2)
@@ -168,9 +169,10 @@ class ExactGP(BatchedGP):
 
     def _factorise(self, rows, x, y):
         npts = x.shape[-2]
-        K = self.kernel(x, x)
-        K.diagonal(dim1=-2, dim2=-1).add_(self.noise_var)
-        L = cholesky_jitter(K, self.kernel.diag(x).amax(-1), lambda bad: self._gp_names(rows[bad]))
+        st = {"rows": rows}
+        K = self._k(st, x, x)
+        K.diagonal(dim1=-2, dim2=-1).add_(self._noise(st)[:, None])
+        L = cholesky_jitter(K, self._kdiag(st, x).amax(-1), lambda bad: self._gp_names(rows[bad]))
         z = torch.linalg.solve_triangular(L, y[..., None], upper=False)[..., 0]
         self.X[rows, :npts] = x
         self.Y[rows, :npts] = y

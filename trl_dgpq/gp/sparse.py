@@ -87,14 +87,14 @@ class SparseOnlineGP(BatchedGP):
         """k(BV, x) ``(k, M, q)`` for x ``(k, q, d)``, zero on unused slots."""
         M = st["BV"].shape[1]
         used = torch.arange(M, device=x.device) < st["n"][:, None]
-        return self.kernel(st["BV"], x) * used[..., None]
+        return self._k(st, st["BV"], x) * used[..., None]
 
     def _predict(self, st: State, xq: torch.Tensor):
         kx = self._kx(st, xq)                                          # (k, w, q)
         k, w, q = kx.shape
         mean = (kx * st["alpha"][..., None]).sum(-2)
         Ck = torch.bmm(kx.mT, st["CQ"][:, :w, :2 * w]).view(k, q, w, 2)[..., 0]  # (k, q, w)
-        var = self.kernel.diag(xq) + (kx.mT * Ck).sum(-1)
+        var = self._kdiag(st, xq) + (kx.mT * Ck).sum(-1)
         return mean, var
 
     # ------------------------------------------------------------- updates
@@ -103,14 +103,14 @@ class SparseOnlineGP(BatchedGP):
         k, w = alpha.shape   # w <= M slots in this (possibly narrowed) state
         M = self.budget + 1
         kx = self._kx(st, x[:, None])                                  # (k, w, 1)
-        kxx = self.kernel.diag(x)                                      # (k,)
+        kxx = self._kdiag(st, x[:, None])[:, 0]                        # (k,)
         CQk = torch.bmm(kx.mT, CQ[:, :, :2 * w]).view(k, w, 2)         # (C k, Q k) interleaved
         Ck, e = CQk[..., 0], CQk[..., 1]
         kx = kx[..., 0]
         mean = (kx * alpha).sum(-1)
         var = kxx + (kx * Ck).sum(-1)
         learn = torch.ones_like(n, dtype=torch.bool) if gate is None else var > gate
-        r = -1.0 / (self.noise_var + var)
+        r = -1.0 / (self._noise(st) + var)
         q = (mean - y) * r
         gamma = (kxx - (kx * e).sum(-1)).clamp_min(0)                  # novelty
         # An empty GP always takes its first point as a basis vector; a duplicate never does.

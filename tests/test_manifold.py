@@ -1,0 +1,94 @@
+import math
+
+import pandas as pd
+import pytest
+import torch
+
+from collectors.experiment import TIMING_COLUMNS, build, resolve_config, run_experiment
+from collectors.online import OnlineCollector
+from trl_dgpq.dgpq import DGPQConfig
+from trl_dgpq.gp import ExactGP, ManifoldKernel, RBFKernel, fit
+from trl_dgpq.gp.train import _nll
+
+D = torch.float64
+
+
+def step_data(n, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    x = torch.rand(n, 1, generator=g, dtype=D) * 2 - 1
+    y = torch.where(x[:, 0] > 0, 1.0, -1.0).to(D) + 0.1 * torch.randn(n, generator=g, dtype=D)
+    return x, y
+
+
+@pytest.mark.parametrize("skip", [True, False])
+def test_gram_matrices_are_psd(skip):
+    k = ManifoldKernel(3, 2, hidden=(10, 7), lengthscale=0.3, skip=skip)
+    x = torch.rand(3, 60, 2, dtype=D)
+    x[:, 30:40] = x[:, :10]  # duplicates
+    K = k(x, x)
+    assert torch.allclose(K, K.mT)
+    assert torch.linalg.eigvalsh(K).min() >= -1e-8
+    torch.testing.assert_close(K.diagonal(dim1=-2, dim2=-1), k.diag(x))
+
+
+def test_fit_lowers_nll_and_gradients_reach_every_parameter():
+    x, y = step_data(60)
+    gp = ExactGP(ManifoldKernel(2, 1, hidden=(10,), lengthscale=0.3), 0.1, 1, batch_shape=(2,))
+    gp.set_data(torch.stack((x, x)), torch.stack((y, -y)))
+    rows = torch.arange(2)
+    valid = torch.ones(2, 60, dtype=torch.bool)
+    with torch.enable_grad():
+        raw_noise = gp.noise.log().clone().requires_grad_()
+        nll, ok = _nll(gp, rows, raw_noise, gp.X[:, :60], gp.Y[:, :60], valid)
+        nll.sum().backward()
+    assert ok.all()
+    for name, p in gp.kernel.named_parameters():
+        assert p.grad is not None and torch.isfinite(p.grad).all(), name
+        assert (p.grad.reshape(2, -1).abs().sum(1) > 0).all(), f"no gradient reaches {name} of every GP"
+    assert (raw_noise.grad.abs() > 0).all()
+    out = fit(gp, steps=40, lr=0.02)
+    assert (out["nll_after"] < out["nll_before"] - 1.0).all() and not out["frozen"].any()
+    m, v = gp.predict(torch.linspace(-1, 1, 20, dtype=D).expand(2, 20)[..., None])
+    assert torch.isfinite(m).all() and (v >= 0).all()
+    assert m[0, -1] > 0.5 and m[1, -1] < -0.5
+
+
+def test_fit_shared_rbf_kernel_and_refuses_the_sparse_gp():
+    x, y = step_data(40)
+    gp = ExactGP(RBFKernel(1.0, 1.0), 0.5, 1)
+    gp.set_data(x, y)
+    out = fit(gp, steps=60, lr=0.05)
+    assert out["nll_after"].item() < out["nll_before"].item()
+    from trl_dgpq.gp import SparseOnlineGP
+    with pytest.raises(TypeError, match="ExactGP"):
+        fit(SparseOnlineGP(RBFKernel(), 0.1, 1))
+
+
+def test_manifold_needs_the_exact_backend():
+    with pytest.raises(ValueError, match="exact"):
+        DGPQConfig(kernel="manifold", gp="sparse").resolve(4)
+
+
+def manifold_config(seeds, **kw):
+    agent = dict(gp="exact", kernel="manifold", kernel_train_every=25, kernel_min_points=5,
+                 kernel_train_steps=10, **kw)
+    return resolve_config("square", "report", seeds, 2, agent=agent, env_kwargs=dict(max_steps=100))
+
+
+def test_no_nan_over_2000_dgpq_steps():
+    env, agent = build(manifold_config([0, 1]))
+    df = OnlineCollector(env, agent, 10 ** 9, max_total_steps=2000, progress=False).run()
+    assert agent.kernel_fits.sum() > 0
+    for name, p in agent.gp.kernel.named_parameters():
+        assert torch.isfinite(p).all(), name
+    assert torch.isfinite(agent.gp.noise).all() and (agent.gp.noise > 0).all()
+    assert torch.isfinite(agent.gp.L).all() and torch.isfinite(agent.gp.z).all()
+    assert len(df) >= 2 and df["return"].notna().all()
+
+
+def test_manifold_seeds_stay_independent():
+    drop = lambda df: df.drop(columns=list(TIMING_COLUMNS)).reset_index(drop=True)  # noqa: E731
+    batch = drop(run_experiment(manifold_config([0, 1, 2]), progress=False))
+    alone = drop(run_experiment(manifold_config([1]), progress=False))
+    pd.testing.assert_frame_equal(alone, batch[batch.seed == 1].reset_index(drop=True),
+                                  check_exact=False, rtol=0, atol=1e-8)
