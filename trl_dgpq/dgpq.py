@@ -228,10 +228,10 @@ class DGPQ:
             return dict(learn=none, update=none)
         var1, mean2, var2, learn = self.learn_gp(s, q_t - qhat_sa, taken)
         self.gp_adds += learn
-        if self.trains_kernel:
-            self.train_kernel(taken & learn[:, None])
         # Step 6: converged (sigma1^2 > sigma_tol2 >= sigma2^2) to a value clearly below Q̂
         update = learn & (var2 <= self.cfg.sigma_tol2) & (-mean2 > 2 * self.cfg.eps1)
+        if self.trains_kernel:  # after the step-6 test, before its reset empties the GPs
+            self.train_kernel(taken & learn[:, None])
         if update.any():
             self.update_qhat(s, a, qhat_sa + mean2 + self.cfg.eps1, update)
         return dict(learn=learn, update=update, var1=var1, var2=var2, mean2=mean2, q_target=q_t)
