@@ -90,11 +90,11 @@ def bench_gp(args):
             ex.set_data(rnd(B, n, DIM), rnd(B, n))
 
             def step():
-                if int(ex.n.max()) >= n + 63:  # stay at ~n points and within capacity
-                    ex.n -= 32
+                if int(ex.n.max()) >= n + 63:  # back to n points (stay within capacity)
+                    ex.n[:] = n
                     ex.L[:, n:, :] = 0
-                    ex.L[:, :, n:] = 0
                     ex.L.diagonal(dim1=-2, dim2=-1)[:, n:] = 1
+                    ex.z[:, n:] = 0
                 ex.add(rnd(B, DIM), rnd(B))
                 ex.predict(rnd(B, 1, DIM))
             record("exact", B, n, timeit(step, min_reps=3, max_reps=30, repeats=3))
@@ -154,9 +154,10 @@ def bench_dgpq(args):
     results = []
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}; square/shaped, budget {args.budget}")
     print(f"{'backend':>7} {'seeds':>6} {'steps':>12} {'us/seed-step':>13} {'(mean)':>9} {'Q̂ size':>8}")
-    for gp in ("sparse", "exact"):
-        for S in (1, 64):
-            for label, start, fresh in ((f"0-{args.window}", 0, True), (f"{args.steps}+", args.steps, False)):
+    for gp in args.backends:
+        for S in args.seed_counts:
+            spans = [(f"0-{args.window}", 0, True)] + ([(f"{args.steps}+", args.steps, False)] if args.steps else [])
+            for label, start, fresh in spans:
                 t0 = time.perf_counter()
                 per_step, agent = windows(S, gp, start, fresh)
                 us = min(float(np.median(w)) for w in per_step)
@@ -234,9 +235,11 @@ def main(argv=None):
     g.add_argument("--out", default=None)
     g.set_defaults(fn=bench_gp)
     d = sub.add_parser("dgpq", help="DGPQ loop cost per seed-step, early and late")
-    d.add_argument("--steps", type=int, default=20000, help="late window starts here")
+    d.add_argument("--steps", type=int, default=20000, help="late window starts here (0: early only)")
     d.add_argument("--window", type=int, default=200)
     d.add_argument("--repeats", type=int, default=3)
+    d.add_argument("--backends", nargs="+", default=["sparse", "exact"], choices=["sparse", "exact"])
+    d.add_argument("--seed-counts", nargs="+", type=int, default=[1, 64])
     d.add_argument("--budget", type=int, default=100)
     d.add_argument("--out", default=None)
     d.set_defaults(fn=bench_dgpq)

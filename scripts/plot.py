@@ -49,10 +49,11 @@ def plot_runs(runs, labels, out: Path, logy_steps: bool = True) -> list:
         ax.set_ylabel(ylabel)
         if fname.startswith("steps") and logy_steps:
             ax.set_yscale("log")
+            ax.yaxis.set_major_locator(matplotlib.ticker.FixedLocator([5, 10, 15, 20, 30, 50, 100, 200, 500]))
             ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
             ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.grid(alpha=0.3, which="both")
-        ax.legend(title="shaded: inter-quartile range", fontsize=8, title_fontsize=8)
+        ax.legend(title="shaded: inter-quartile range", fontsize=8, title_fontsize=8, loc="best")
         fig.tight_layout()
         path = out / fname
         fig.savefig(path, dpi=120)

@@ -92,3 +92,18 @@ def test_manifold_seeds_stay_independent():
     alone = drop(run_experiment(manifold_config([1]), progress=False))
     pd.testing.assert_frame_equal(alone, batch[batch.seed == 1].reset_index(drop=True),
                                   check_exact=False, rtol=0, atol=1e-8)
+
+
+def test_fit_trouble_keeps_last_good_parameters_and_logs(caplog):
+    x, y = step_data(40)
+    gp = ExactGP(ManifoldKernel(1, 1, hidden=(10,), lengthscale=0.3), 0.1, 1, batch_shape=(1,))
+    gp.set_data(x[None], y[None])
+    with caplog.at_level("WARNING"):
+        out = fit(gp, steps=30, lr=1e4)  # absurd step size: blows up unless guarded
+    for name, p in gp.kernel.named_parameters():
+        assert torch.isfinite(p).all(), name
+    assert torch.isfinite(gp.noise).all() and torch.isfinite(gp.L).all()
+    m, v = gp.predict(x[None, :5])
+    assert torch.isfinite(m).all() and torch.isfinite(v).all()
+    assert out["frozen"].all() and "kept their last good parameters" in caplog.text
+    torch.testing.assert_close(out["nll_after"], out["nll_before"])  # back at the last good point
