@@ -30,19 +30,16 @@ def sq_dist(x1: torch.Tensor, x2: torch.Tensor) -> torch.Tensor:
     return torch.cdist(x1, x2, compute_mode="donot_use_mm_for_euclid_dist").square()
 
 
-class RBFKernel(nn.Module):
-    """k(x, x') = outputscale * exp(-|x - x'|^2 / (2 lengthscale^2)).
+class ScaledKernel(nn.Module):
+    """Base of the RBF-type kernels: lengthscale and outputscale stored as logs
+    (``raw_lengthscale``, ``raw_outputscale``), so gradient-based fitting keeps them
+    positive; ``shape`` () for one shared value, (num_gps,) for one per GP."""
 
-    The hyperparameters are stored as logs (``raw_lengthscale``,
-    ``raw_outputscale``) so that gradient-based fitting keeps them positive.
-    """
-
-    def __init__(self, lengthscale: float = 1.0, outputscale: float = 1.0, dtype=DTYPE):
-        super().__init__()
-        ls = _positive(lengthscale, "lengthscale")
-        os_ = _positive(outputscale, "outputscale")
-        self.raw_lengthscale = nn.Parameter(torch.tensor(math.log(ls), dtype=dtype))
-        self.raw_outputscale = nn.Parameter(torch.tensor(math.log(os_), dtype=dtype))
+    def _init_scales(self, lengthscale: float, outputscale: float, shape=(), dtype=DTYPE) -> None:
+        ls = math.log(_positive(lengthscale, "lengthscale"))
+        os_ = math.log(_positive(outputscale, "outputscale"))
+        self.raw_lengthscale = nn.Parameter(torch.full(shape, ls, dtype=dtype))
+        self.raw_outputscale = nn.Parameter(torch.full(shape, os_, dtype=dtype))
 
     @property
     def lengthscale(self) -> torch.Tensor:
@@ -51,6 +48,15 @@ class RBFKernel(nn.Module):
     @property
     def outputscale(self) -> torch.Tensor:
         return self.raw_outputscale.exp()
+
+
+class RBFKernel(ScaledKernel):
+    """k(x, x') = outputscale * exp(-|x - x'|^2 / (2 lengthscale^2)), one shared set of
+    hyperparameters for every GP it serves."""
+
+    def __init__(self, lengthscale: float = 1.0, outputscale: float = 1.0, dtype=DTYPE):
+        super().__init__()
+        self._init_scales(lengthscale, outputscale, (), dtype)
 
     def forward(self, x1: torch.Tensor, x2: torch.Tensor) -> torch.Tensor:
         ls = self.lengthscale

@@ -22,7 +22,7 @@ from typing import Callable, Optional, Sequence
 import torch
 from torch import nn
 
-from .kernels import DTYPE, _positive, sq_dist
+from .kernels import DTYPE, ScaledKernel, sq_dist
 
 ACTIVATIONS = {"tanh": torch.tanh, "softplus": nn.functional.softplus, "sigmoid": torch.sigmoid}
 
@@ -31,7 +31,7 @@ def _default_uniform(n: int, count: int) -> torch.Tensor:
     return torch.rand(n, count, generator=torch.Generator().manual_seed(0), dtype=DTYPE)
 
 
-class ManifoldKernel(nn.Module):
+class ManifoldKernel(ScaledKernel):
     """RBF kernel on MLP features, one feature map per GP.
 
     num_gps: number of GPs (the flat size of the GP batch it serves).
@@ -71,17 +71,7 @@ class ManifoldKernel(nn.Module):
             if bshape:
                 self.biases.append(nn.Parameter(u[:, at:at + bshape[0]].clone()))
                 at += bshape[0]
-        N = self.num_gps
-        self.raw_lengthscale = nn.Parameter(torch.full((N,), math.log(_positive(lengthscale, "lengthscale")), dtype=dtype))
-        self.raw_outputscale = nn.Parameter(torch.full((N,), math.log(_positive(outputscale, "outputscale")), dtype=dtype))
-
-    @property
-    def lengthscale(self) -> torch.Tensor:
-        return self.raw_lengthscale.exp()
-
-    @property
-    def outputscale(self) -> torch.Tensor:
-        return self.raw_outputscale.exp()
+        self._init_scales(lengthscale, outputscale, (self.num_gps,), dtype)
 
     def _pick(self, p: torch.Tensor, rows) -> torch.Tensor:
         return p if rows is None else p[rows]
