@@ -50,7 +50,7 @@ class OnlineCollector:
         episode, steps, ret, wall, cpu = zeros(torch.long), zeros(torch.long), zeros(), zeros(), zeros()
         active = torch.ones(S, dtype=torch.bool)
         rows = []
-        bar = tqdm(total=S * self.episodes, desc=self.desc, disable=not self.progress, leave=False)
+        bar = tqdm(total=S * self.episodes, desc=self.desc, disable=not self.progress, leave=False, mininterval=0.5)
         td = env.reset()
         total = 0
         while active.any() and (self.max_total_steps is None or total < self.max_total_steps):
