@@ -221,3 +221,15 @@ def test_add_if_uncertain_matches_predict(cls, kw):
         torch.testing.assert_close(mean2[sel], m_after[..., 0][sel], atol=1e-9, rtol=0)
         torch.testing.assert_close(var2[sel], v_after[..., 0][sel], atol=1e-9, rtol=0)
         assert torch.equal(a.size, b.size)
+
+
+def test_jitter_ladder_keeps_each_matrix_at_the_jitter_that_fixed_it():
+    """One matrix needs the smallest rung, the other a larger one: both must factorise."""
+    from trl_dgpq.gp.exact import cholesky_jitter
+    A = torch.ones(2, 2, dtype=D)                                   # singular: smallest rung fixes it
+    B = torch.tensor([[1.0, 1.0 + 5e-6], [1.0 + 5e-6, 1.0]], dtype=D)  # eigenvalue -5e-6: needs 1e-4
+    L = cholesky_jitter(torch.stack((A, B)), torch.ones(2, dtype=D))
+    assert torch.isfinite(L).all()
+    rebuilt = L @ L.mT
+    assert (rebuilt - torch.stack((A, B))).abs().max() < 2e-4
+    assert (rebuilt[0] - A).abs().max() < 1e-8                      # A kept its tiny jitter

@@ -181,20 +181,30 @@ class ExactGP(BatchedGP):
         self.n[rows] = npts
 
 
-def cholesky_jitter(K: torch.Tensor, scale: torch.Tensor, describe=lambda bad: "GP") -> torch.Tensor:
-    """Batched Cholesky with the jitter ladder (relative to ``scale``, shape batch).
-    Raises GPNumericalError naming the failing GPs instead of returning NaN."""
-    if not torch.isfinite(K).all():
-        bad = ~torch.isfinite(K).flatten(-2).all(-1)
-        raise GPNumericalError(f"non-finite covariance in {describe(bad)}")
+def cholesky_ladder(K: torch.Tensor, scale: torch.Tensor):
+    """Batched Cholesky, adding to each failing matrix the smallest jitter of the ladder
+    (relative to ``scale``, shape batch) that makes it factorise; a matrix keeps the
+    jitter that fixed it while others climb further. Returns (L, info); info > 0 marks
+    matrices that failed even at the top of the ladder."""
     L, info = torch.linalg.cholesky_ex(K)
+    jitter = torch.zeros_like(scale)
+    eye = torch.eye(K.shape[-1], dtype=K.dtype, device=K.device)
     for j in JITTERS:
         bad = info > 0
         if not bad.any():
-            return L
-        eye = torch.eye(K.shape[-1], dtype=K.dtype, device=K.device)
-        Kj = torch.where(bad[..., None, None], K + (j * scale)[..., None, None] * eye, K)
-        L, info = torch.linalg.cholesky_ex(Kj)
+            break
+        jitter = torch.where(bad, j * scale, jitter)
+        L, info = torch.linalg.cholesky_ex(K + jitter[..., None, None] * eye)
+    return L, info
+
+
+def cholesky_jitter(K: torch.Tensor, scale: torch.Tensor, describe=lambda bad: "GP") -> torch.Tensor:
+    """``cholesky_ladder`` that raises GPNumericalError naming the failing GPs instead of
+    returning NaN."""
+    if not torch.isfinite(K).all():
+        bad = ~torch.isfinite(K).flatten(-2).all(-1)
+        raise GPNumericalError(f"non-finite covariance in {describe(bad)}")
+    L, info = cholesky_ladder(K, scale)
     bad = info > 0
     if bad.any():
         raise GPNumericalError(f"Cholesky failed even with jitter {JITTERS[-1]:g} in {describe(bad)}")

@@ -18,27 +18,21 @@ from typing import Optional
 import torch
 
 from .base import GPNumericalError
-from .exact import JITTERS, ExactGP
+from .exact import ExactGP, cholesky_ladder
 
 log = logging.getLogger(__name__)
 
 
 def _nll(gp: ExactGP, rows: torch.Tensor, raw_noise: torch.Tensor, X, Y, valid):
     """Per-GP NLL (k,) and a per-GP 'factorisation ok' flag, for padded data."""
-    st = {"rows": rows if gp._per_gp else None}
-    K = gp._k(st, X, X) if gp._per_gp else gp.kernel(X, X)
+    st = {"rows": rows}
+    K = gp._k(st, X, X)
     pair = valid[:, :, None] & valid[:, None, :]
     eye = torch.eye(K.shape[-1], dtype=K.dtype, device=K.device)
     noise = raw_noise.exp()
     # Padded rows/cols become identity, which adds exactly 0 to the NLL.
     K = torch.where(pair, K, 0.0) + eye * torch.where(valid, noise[:, None], 1.0)[:, :, None]
-    L, info = torch.linalg.cholesky_ex(K)
-    scale = gp._kdiag(st, X).amax(-1).detach()
-    for j in JITTERS:  # per-GP jitter ladder; GPs that factorise are left untouched
-        bad = info > 0
-        if not bad.any():
-            break
-        L, info = torch.linalg.cholesky_ex(K + (bad * j * scale)[:, None, None] * eye)
+    L, info = cholesky_ladder(K, gp._kdiag(st, X).amax(-1).detach())  # per-GP jitter
     ok = info == 0
     z = torch.linalg.solve_triangular(L, (Y * valid)[..., None], upper=False)[..., 0]
     logdet = torch.where(valid, L.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).log(), 0.0).sum(-1)
