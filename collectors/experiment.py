@@ -1,96 +1,206 @@
-"""One experiment = (env, preset, overrides, seeds, episodes) -> per-episode DataFrame.
+"""One experiment = a resolved config -> seed-batched env + agent -> per-episode rows.
 
-``resolve_config`` turns user choices into a complete, validated, JSON-able dict
-(what ``config.json`` records); ``run_experiment`` builds the seed-batched env
-and DGPQ agent from such a dict and runs them in lock-step. Everything that
-varies between runs lives in the dict, so a run can be repeated from its
-``config.json`` alone, and a batch of seeds can later be shipped to another
-process or machine as (config, seed list).
+``resolve_config`` turns user choices (preset, ``--set`` overrides, or a recorded
+``config.json``) into a complete, validated, JSON-able dict of three sections:
+
+    {"run": RunConfig fields, "env": the env's Config fields, "agent": the agent's Config fields}
+
+Defaults come from the dataclasses only; presets (``trl_dgpq/presets.py``) and
+overrides are applied on top. ``build`` makes the env and agent for a config and a
+seed list, so a batch of seeds can be shipped to another process as (config, seeds).
 """
 from __future__ import annotations
 
-import copy
 import re
-from typing import Iterable, List, Optional
+from dataclasses import dataclass
+from typing import Any, Dict, List, Optional, Tuple
 
 import pandas as pd
 
-from envs import ENVS
-from trl_dgpq.dgpq import DGPQ, DGPQConfig
+from trl_dgpq.agents import AGENTS
+from trl_dgpq.config import find_leaf, from_dict, leaves, setting, to_dict, with_overrides
+from trl_dgpq.envs import ENVS
+from trl_dgpq.presets import preset_overrides
 
 from .online import OnlineCollector
 
 TIMING_COLUMNS = ("wall_s", "cpu_s", "us_per_step")
+SECTIONS = ("run", "env", "agent")
 
 
-def parse_seeds(text: str) -> List[int]:
-    """'N' -> 0..N-1; 'A-B' -> A..B inclusive; 'a,b,c' -> that list."""
+def parse_seeds(text) -> List[int]:
+    """'N' -> 0..N-1; 'A-B' -> A..B inclusive; 'a,b,c' -> that list (a list passes through)."""
+    if isinstance(text, (list, tuple)):
+        seeds = list(text)
+        if not seeds or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds):
+            raise ValueError(f"seeds must be non-negative integers, got {seeds}")
+        if len(set(seeds)) != len(seeds):
+            raise ValueError(f"seeds {seeds} repeat a seed")
+        return seeds
     text = str(text).strip()
     if re.fullmatch(r"\d+", text):
         n = int(text)
         if n < 1:
-            raise ValueError("--seeds count must be >= 1")
+            raise ValueError("seeds count must be >= 1")
         return list(range(n))
     m = re.fullmatch(r"(\d+)\s*-\s*(\d+)", text)
     if m:
         a, b = int(m.group(1)), int(m.group(2))
         if b < a:
-            raise ValueError(f"--seeds range {text!r} is empty")
+            raise ValueError(f"seeds range {text!r} is empty")
         return list(range(a, b + 1))
     if re.fullmatch(r"\d+(\s*,\s*\d+)+,?", text):
-        seeds = [int(s) for s in text.split(",") if s.strip()]
-        if len(set(seeds)) != len(seeds):
-            raise ValueError(f"--seeds {text!r} repeats a seed")
-        return seeds
-    raise ValueError(f"--seeds must be a count N, a range A-B or a comma list, got {text!r}")
+        return parse_seeds([int(s) for s in text.split(",") if s.strip()])
+    raise ValueError(f"seeds must be a count N, a range A-B or a comma list, got {text!r}")
 
 
-def resolve_config(env: str = "square", preset: Optional[str] = None, seeds: Iterable[int] = range(8),
-                   episodes: int = 30, agent: Optional[dict] = None, env_kwargs: Optional[dict] = None) -> dict:
-    """Preset + overrides -> validated config dict (agent values resolved, e.g. Section 5)."""
-    if env not in ENVS:
-        raise ValueError(f"unknown env {env!r}; choose from {sorted(ENVS)}")
-    env_cls, presets = ENVS[env]
-    preset = preset or next(iter(presets))
-    if preset not in presets:
-        raise ValueError(f"unknown preset {preset!r} for env {env!r}; choose from {sorted(presets)}")
-    base = copy.deepcopy(presets[preset])
-    agent_d = {**base["agent"], **(agent or {})}
-    # Asking for Section 5 (eps/delta) without explicit sigma_tol2/eps1 derives both.
-    if agent and ({"eps", "delta"} & set(agent)):
-        for k in ("sigma_tol2", "eps1"):
-            if k not in agent:
-                agent_d[k] = None
-    env_d = {**base["env"], **(env_kwargs or {})}
-    seeds = [int(s) for s in seeds]
-    if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
-        raise ValueError("seeds must be distinct non-negative integers")
-    if int(episodes) != episodes or episodes < 1:
-        raise ValueError(f"episodes must be >= 1, got {episodes}")
-    probe = env_cls(seeds=[0], **env_d)  # validates env settings, gives the action count
-    num_actions = int(probe.action_spec.space.n)
-    cfg = DGPQConfig.from_dict(agent_d).resolve(num_actions)
-    return dict(env=env, preset=preset, env_kwargs=env_d, agent=cfg.to_dict(), seeds=seeds,
-                episodes=int(episodes))
+@dataclass
+class RunConfig:
+    """What to run."""
+    env: str = setting("square", "environment", choices=tuple(ENVS))
+    agent: str = setting("dgpq", "agent", choices=tuple(AGENTS))
+    preset: Optional[str] = setting(None, "named settings of (env, agent) in trl_dgpq/presets.py "
+                                          "(default: the env's default preset)")
+    seeds: Tuple[int, ...] = setting(tuple(range(8)), "count N (seeds 0..N-1), range A-B (inclusive) or "
+                                                      "list a,b,c; all run in one batch",
+                                     parse=lambda v: tuple(parse_seeds(v)))
+    episodes: int = setting(50, "episodes per seed")
+    checkpoint_every: int = setting(10, "checkpoint every K episodes per seed (0: only on interrupt and at the end)")
+
+    def check(self) -> "RunConfig":
+        if self.episodes < 1:
+            raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        if self.checkpoint_every < 0:
+            raise ValueError(f"checkpoint_every must be >= 0, got {self.checkpoint_every}")
+        return self
 
 
-def build(config: dict, seeds: Optional[List[int]] = None):
-    """The env and agent for ``seeds`` (default: the config's)."""
-    seeds = config["seeds"] if seeds is None else seeds
-    env_cls, _ = ENVS[config["env"]]
-    env = env_cls(seeds=seeds, **config["env_kwargs"])
-    obs_dim = env.observation_spec["observation"].shape[-1]
-    num_actions = int(env.action_spec.space.n)
-    agent = DGPQ(DGPQConfig.from_dict(config["agent"]), seeds, obs_dim, num_actions)
-    return env, agent
+def classes(run: dict):
+    """(env class, agent class) of a run section."""
+    return ENVS[run["env"]], AGENTS[run["agent"]]
+
+
+def split_overrides(settings: Dict[str, Any], env_cls, agent_cls) -> Dict[str, Dict[str, Any]]:
+    """{key: value} -> {"run"|"env"|"agent": {leaf key: value}}. A key is a setting name
+    (``noise_var``), a dotted path (``gp.noise_var``) or either behind a section
+    (``agent.noise_var``)."""
+    owners = {"run": RunConfig, "env": env_cls.Config, "agent": agent_cls.Config}
+    out = {s: {} for s in SECTIONS}
+    for key, value in settings.items():
+        head, _, rest = key.partition(".")
+        if head in owners and rest:
+            places = [(head, find_leaf(owners[head], rest))]
+        else:
+            places = [(s, find_leaf(cls, key)) for s, cls in owners.items()]
+        places = [(s, leaf) for s, leaf in places if leaf is not None]
+        if not places:
+            raise ValueError(f"unknown setting {key!r} for env {env_cls.__name__} and agent {agent_cls.__name__}")
+        if len(places) > 1:
+            raise ValueError(f"setting {key!r} is ambiguous: say {' or '.join(s + '.' + key for s, _ in places)}")
+        section, leaf = places[0]
+        out[section][leaf.key] = value
+    return out
+
+
+def resolve_config(settings: Optional[Dict[str, Any]] = None, base: Optional[dict] = None, **kw) -> dict:
+    """Validated, complete config dict. ``settings`` (and keyword arguments) are
+    overrides by setting name, e.g. ``resolve_config(preset="report", seeds=[0], gp="exact")``;
+    ``base`` is a recorded config (``config.json``) to start from instead of a preset.
+    Raises ValueError with one line for anything wrong."""
+    settings = {**(settings or {}), **kw}
+    run_keys = {k.partition(".")[2] if k.startswith("run.") else k: v for k, v in settings.items()
+                if (k.startswith("run.") or "." not in k) and find_leaf(RunConfig, k.removeprefix("run."))}
+    start = from_dict(RunConfig, base["run"]) if base else RunConfig()
+    run = with_overrides(start, run_keys).check()
+    if base and (run.env, run.agent) != (base["run"]["env"], base["run"]["agent"]):
+        raise ValueError("a recorded config keeps its env and agent; start a new run to change them")
+    env_cls, agent_cls = ENVS[run.env], AGENTS[run.agent]
+    given = split_overrides(settings, env_cls, agent_cls)
+    if base:
+        env_cfg = from_dict(env_cls.Config, base["env"])
+        agent_cfg = from_dict(agent_cls.Config, base["agent"])
+    else:
+        name, preset = preset_overrides(run.env, run.agent, run.preset)
+        run = with_overrides(run, {"preset": name})
+        env_cfg = with_overrides(env_cls.Config(), preset["env"])
+        agent_cfg = with_overrides(agent_cls.Config(), preset["agent"])
+    implied = getattr(agent_cls.Config, "implied", lambda given: {})(given["agent"])
+    env_cfg = with_overrides(env_cfg, given["env"]).check()
+    agent_cfg = with_overrides(agent_cfg, {**implied, **given["agent"]})
+    probe = env_cls([0], env_cfg)  # what the agent needs to know of the env: specs, state box
+    agent_cfg = agent_cls.resolve_config(agent_cfg, probe)
+    return {"run": to_dict(run), "env": to_dict(env_cfg), "agent": to_dict(agent_cfg)}
+
+
+def load_sections(config: dict):
+    """(RunConfig, env config, agent config) objects of a config dict."""
+    unknown = set(config) - set(SECTIONS) - {"versions", "git"}
+    if unknown or not set(SECTIONS) <= set(config):
+        raise ValueError(f"a config needs sections {list(SECTIONS)}, got {sorted(config)}")
+    env_cls, agent_cls = classes(config["run"])
+    return (from_dict(RunConfig, config["run"]), from_dict(env_cls.Config, config["env"]),
+            from_dict(agent_cls.Config, config["agent"]))
+
+
+def build(config: dict, seeds: Optional[List[int]] = None, device="cpu"):
+    """The env and agent of ``config`` for ``seeds`` (default: the config's)."""
+    run, env_cfg, agent_cfg = load_sections(config)
+    seeds = list(run.seeds) if seeds is None else list(seeds)
+    env_cls, agent_cls = classes(config["run"])
+    env = env_cls(seeds, env_cfg, device=device)
+    return env, agent_cls.make(agent_cfg, env, seeds)
+
+
+def memory_estimate(config: dict) -> int:
+    """Bytes the agent's state takes at the start, for all seeds."""
+    run, env_cfg, agent_cfg = load_sections(config)
+    env_cls, agent_cls = classes(config["run"])
+    return int(agent_cls.memory_bytes(agent_cfg, env_cls([0], env_cfg), len(run.seeds)))
+
+
+def available_memory() -> Optional[int]:
+    """MemAvailable of this machine in bytes (None if unknown)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def check_memory(config: dict) -> None:
+    """Refuse (ValueError) a config whose state would not fit in this machine's memory."""
+    need, have = memory_estimate(config), available_memory()
+    if have is not None and need > have:
+        raise ValueError(f"this run needs about {need / 2**30:.3g} GiB for its agents' state at the start, "
+                         f"{have / 2**30:.3g} GiB is available: fewer seeds, a smaller budget or capacity")
+
+
+def describe(config: dict) -> str:
+    run = config["run"]
+    return f"{run['env']}/{run['agent']}/{run['preset']}"
 
 
 def run_experiment(config: dict, progress: bool = True, max_total_steps: Optional[int] = None,
                    seeds: Optional[List[int]] = None) -> pd.DataFrame:
-    """Run all (or the given) seeds of ``config`` in one batch; one row per episode."""
+    """Run all (or the given) seeds of ``config`` in one batch, in memory; one row per
+    episode. (``trl_dgpq.collectors.runner`` runs into a folder, with checkpoints.)"""
+    check_memory(config)
     env, agent = build(config, seeds)
-    collector = OnlineCollector(env, agent, config["episodes"], max_total_steps=max_total_steps,
-                                progress=progress, desc=f"{config['env']}/{config['preset']}")
+    collector = OnlineCollector(env, agent, config["run"]["episodes"], max_total_steps=max_total_steps,
+                                progress=progress, desc=describe(config))
     df = collector.run()
     df.attrs["step_seconds"] = collector.step_seconds
     return df
+
+
+def cli_leaves():
+    """Every setting of RunConfig and of every registered env and agent config, by key
+    (first one wins for help text): what ``scripts/train.py`` builds its flags from."""
+    out = {}
+    for cls in [RunConfig] + [e.Config for e in ENVS.values()] + [a.Config for a in AGENTS.values()]:
+        for leaf in leaves(cls):
+            out.setdefault(leaf.key, leaf)
+    return out

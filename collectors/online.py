@@ -1,39 +1,46 @@
 """Lock-step collection for online learners on a seed-batched env.
 
-TorchRL's collectors hand a frozen policy to worker processes and learn from
-batches afterwards; DGPQ learns after every transition, so here the learner runs
-inline: act -> ``env.step_and_maybe_reset`` -> observe, for all seeds at once.
-Seeds that have finished their episodes stay in the batch (the env is
-batch-locked) but are masked out of learning and bookkeeping.
+act -> ``env.step_and_maybe_reset`` -> observe, for all seeds at once, after every
+transition. Why not TorchRL's ``Collector``: it does run the policy in-process, so
+a learner could update between its batches, but it counts frames, not episodes:
+it cannot stop each seed after exactly ``episodes`` episodes while the others go
+on, nor mask finished seeds out of learning, and its per-batch bookkeeping
+(trajectory ids, step counts, batch assembly) would be paid on every single step.
+Seeds that have finished stay in the batch (the env is batch-locked) but are
+masked out of learning and bookkeeping.
 
 Time is measured per batched step (wall: ``perf_counter``, CPU: ``process_time``
 of the whole process) and shared equally among the seeds active in that step,
 so ``wall_s`` / ``cpu_s`` of an episode is that seed's share of the batch's cost.
+
+The collector's state (the current observation TensorDict, per-seed episode
+counters and accumulators) saves and restores with ``state_dict``, so a run can
+stop after any step and continue exactly.
 """
 from __future__ import annotations
 
 import time
-from typing import Optional, Protocol
+from typing import Callable, List, Optional
 
 import pandas as pd
 import torch
+from tensordict import TensorDict
 from tqdm.auto import tqdm
 
-
-class OnlineAgent(Protocol):
-    def act(self, s: torch.Tensor) -> torch.Tensor: ...
-    def observe(self, s, a, r, s_next, terminal, active) -> dict: ...
-    def episode_stats(self) -> dict: ...
+COLUMNS = ["seed", "episode", "steps", "return", "terminated", "wall_s", "cpu_s", "us_per_step"]
 
 
 class OnlineCollector:
     """Runs ``episodes`` episodes for every seed of ``env`` (or stops after
-    ``max_total_steps`` batched steps) and returns one row per finished episode.
+    ``max_total_steps`` batched steps in one ``run`` call) and returns one row per
+    finished episode.
 
     ``step_seconds`` holds the wall time of every batched step (for benchmarks).
     """
 
-    def __init__(self, env, agent: OnlineAgent, episodes: int, max_total_steps: Optional[int] = None,
+    ACCUMULATORS = ("episode", "steps", "ret", "wall", "cpu", "active")
+
+    def __init__(self, env, agent, episodes: int, max_total_steps: Optional[int] = None,
                  progress: bool = True, desc: str = "episodes"):
         if int(episodes) != episodes or episodes < 1:
             raise ValueError(f"episodes must be a positive integer, got {episodes}")
@@ -41,52 +48,101 @@ class OnlineCollector:
         self.max_total_steps = max_total_steps
         self.progress, self.desc = progress, desc
         self.step_seconds: list[float] = []
+        S = env.batch_size[0]
+        self.seeds = list(getattr(env, "seeds", range(S)))
+        zeros = lambda dtype=torch.float64: torch.zeros(S, dtype=dtype)  # noqa: E731
+        self.episode, self.steps = zeros(torch.long), zeros(torch.long)
+        self.ret, self.wall, self.cpu = zeros(), zeros(), zeros()
+        self.active = torch.ones(S, dtype=torch.bool)
+        self.total = 0      # batched steps so far
+        self.td = None      # the current observation TensorDict (None: reset first)
 
-    def run(self) -> pd.DataFrame:
+    @property
+    def finished(self) -> bool:
+        return not bool(self.active.any())
+
+    @property
+    def episodes_done(self) -> int:
+        return int(self.episode.sum())
+
+    def run(self, on_rows: Optional[Callable[[List[dict]], None]] = None,
+            after_step: Optional[Callable[["OnlineCollector"], bool]] = None) -> pd.DataFrame:
+        """Collect until every seed has finished its episodes. After each batched step,
+        ``on_rows(rows)`` gets the rows of the episodes that ended in it, then
+        ``after_step(self)`` may return True to stop early (``run`` again continues).
+        Returns the rows of this call, sorted by seed and episode."""
         env, agent = self.env, self.agent
         S = env.batch_size[0]
-        seeds = list(getattr(env, "seeds", range(S)))
-        zeros = lambda dtype=torch.float64: torch.zeros(S, dtype=dtype)  # noqa: E731
-        episode, steps, ret, wall, cpu = zeros(torch.long), zeros(torch.long), zeros(), zeros(), zeros()
-        active = torch.ones(S, dtype=torch.bool)
         rows = []
-        bar = tqdm(total=S * self.episodes, desc=self.desc, disable=not self.progress, leave=False, mininterval=0.5)
-        td = env.reset()
-        total = 0
-        while active.any() and (self.max_total_steps is None or total < self.max_total_steps):
+        bar = tqdm(total=S * self.episodes, initial=self.episodes_done, desc=self.desc,
+                   disable=not self.progress, leave=False, mininterval=0.5)
+        td = env.reset() if self.td is None else self.td
+        steps_here = 0
+        while self.active.any() and (self.max_total_steps is None or steps_here < self.max_total_steps):
+            active = self.active
             t0, c0 = time.perf_counter(), time.process_time()
-            s = td.get("observation")
-            a = agent.act(s)
-            td.set("action", a)
+            td.set("action", agent.act(td))
             td, td_next = env.step_and_maybe_reset(td)
-            nxt = td.get("next")
-            r = nxt.get("reward")[:, 0]
-            terminated = nxt.get("terminated")[:, 0]
-            agent.observe(s, a, r, nxt.get("observation"), terminated, active)
+            agent.observe(td, active)
             dt, dc = time.perf_counter() - t0, time.process_time() - c0
             self.step_seconds.append(dt)
-            total += 1
+            self.total += 1
+            steps_here += 1
+            nxt = td.get("next")
+            r = nxt.get("reward").reshape(S).to(torch.float64)
             n_active = int(active.sum())
-            steps += active
-            ret += torch.where(active, r.to(torch.float64), 0.0)
-            wall += active * (dt / n_active)
-            cpu += active * (dc / n_active)
-            finished = nxt.get("done")[:, 0] & active
-            if finished.any():
-                episode += finished
-                stats = {k: v.tolist() for k, v in agent.episode_stats().items()}
-                for i in finished.nonzero()[:, 0].tolist():
-                    rows.append(dict(seed=seeds[i], episode=int(episode[i]), steps=int(steps[i]),
-                                     **{"return": float(ret[i])}, terminated=bool(terminated[i]),
-                                     wall_s=float(wall[i]), cpu_s=float(cpu[i]),
-                                     us_per_step=float(wall[i]) / int(steps[i]) * 1e6,
-                                     **{k: v[i] for k, v in stats.items()}))
-                steps[finished], ret[finished], wall[finished], cpu[finished] = 0, 0.0, 0.0, 0.0
-                active &= episode < self.episodes
-                bar.update(int(finished.sum()))
-                bar.set_postfix(steps=total)
-            td = td_next
+            self.steps += active
+            self.ret += torch.where(active, r, 0.0)
+            self.wall += active * (dt / n_active)
+            self.cpu += active * (dc / n_active)
+            ended = nxt.get("done").reshape(S) & active
+            new_rows = []
+            if ended.any():
+                new_rows = self._finish(ended, nxt.get("terminated").reshape(S))
+                rows += new_rows
+                bar.update(len(new_rows))
+                bar.set_postfix(steps=self.total)
+            td = self.td = td_next
+            if new_rows and on_rows is not None:
+                on_rows(new_rows)
+            if after_step is not None and after_step(self):
+                break
         bar.close()
-        cols = ["seed", "episode", "steps", "return", "terminated", "wall_s", "cpu_s", "us_per_step"]
-        df = pd.DataFrame(rows, columns=cols + [c for c in (rows[0] if rows else {}) if c not in cols])
-        return df.sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
+        return frame(rows)
+
+    def _finish(self, ended: torch.Tensor, terminated: torch.Tensor) -> List[dict]:
+        """Rows of the episodes that just ended; reset their accumulators."""
+        self.episode += ended
+        stats = {k: v.tolist() for k, v in self.agent.episode_stats().items()}
+        rows = []
+        for i in ended.nonzero()[:, 0].tolist():
+            steps = int(self.steps[i])
+            rows.append(dict(seed=self.seeds[i], episode=int(self.episode[i]), steps=steps,
+                             **{"return": float(self.ret[i])}, terminated=bool(terminated[i]),
+                             wall_s=float(self.wall[i]), cpu_s=float(self.cpu[i]),
+                             us_per_step=float(self.wall[i]) / steps * 1e6,
+                             **{k: v[i] for k, v in stats.items()}))
+        for name in ("steps", "ret", "wall", "cpu"):
+            getattr(self, name)[ended] = 0
+        self.active &= self.episode < self.episodes
+        return rows
+
+    def state_dict(self) -> dict:
+        return {"total": self.total, "td": None if self.td is None else self.td.to_dict(),
+                **{name: getattr(self, name).clone() for name in self.ACCUMULATORS}}
+
+    def load_state_dict(self, state: dict) -> None:
+        for name in self.ACCUMULATORS:
+            if state[name].shape != getattr(self, name).shape:
+                raise ValueError(f"collector state is for {state[name].shape[0]} seeds, not {len(self.seeds)}")
+            getattr(self, name).copy_(state[name])
+        self.total = int(state["total"])
+        self.td = (None if state["td"] is None else
+                   TensorDict(state["td"], batch_size=self.env.batch_size, device=self.env.device))
+
+
+def frame(rows: List[dict]) -> pd.DataFrame:
+    """Rows as a DataFrame with the fixed columns first, sorted by seed and episode."""
+    extra = [c for c in (rows[0] if rows else {}) if c not in COLUMNS]
+    df = pd.DataFrame(rows, columns=COLUMNS + extra)
+    return df.sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)

@@ -1,7 +1,16 @@
-"""TorchRL environments, batched over seeds (``batch_size=[S]``)."""
-from .square import PRESETS as SQUARE_PRESETS
-from .square import SquareEnv
+"""TorchRL environments, batched over seeds (``batch_size=[S]``); installed as
+``trl_dgpq.envs``. A new env: one file with its class and ``Config`` dataclass,
+one line in ``ENVS``, one entry in ``trl_dgpq/presets.py``."""
+from .base import SeedBatchedEnv
+from .square import SquareConfig, SquareEnv
 
-ENVS = {"square": (SquareEnv, SQUARE_PRESETS)}
+ENVS = {"square": SquareEnv}
 
-__all__ = ["SquareEnv", "SQUARE_PRESETS", "ENVS"]
+
+def make_env(name: str, cfg, seeds, device="cpu") -> SeedBatchedEnv:
+    if name not in ENVS:
+        raise ValueError(f"unknown env {name!r}; choose from {sorted(ENVS)}")
+    return ENVS[name](seeds, cfg, device=device)
+
+
+__all__ = ["ENVS", "make_env", "SeedBatchedEnv", "SquareEnv", "SquareConfig"]

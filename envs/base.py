@@ -1,42 +1,46 @@
 """Shared machinery of the seed-batched environments.
 
-A subclass describes one domain: it builds its specs in ``_make_specs`` and
-implements ``_initial(mask)`` (reset the selected seeds' state, return the
-observation of all seeds) and ``_transition(action)`` (advance every seed, return
-observation, reward ``(S,)`` and terminated ``(S,)``). This base handles the
-per-seed random streams, partial resets through the ``_reset`` mask, the step
-cap (truncation, which is not termination) and building TensorDicts on
-``self.device``.
+A subclass describes one domain: its settings are a config dataclass (``Config``),
+it builds its specs in ``_make_specs`` and implements ``_initial(mask)`` (reset
+the selected seeds' state, return the observation of all seeds) and
+``_transition(action)`` (advance every seed, return observation, reward ``(S,)``
+and terminated ``(S,)``); ``_state_names`` lists the tensors that change as it
+runs, so ``state_dict`` can save them. This base handles the per-seed random
+streams, partial resets through the ``_reset`` mask, the step cap (truncation,
+which is not termination), checking actions against the action spec and
+building TensorDicts on ``self.device``.
 """
 from __future__ import annotations
 
-from typing import Sequence
+from dataclasses import replace
+from typing import Sequence, Tuple
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.data import Categorical, Composite
+from torchrl.data import Bounded, Categorical, Composite
 from torchrl.envs import EnvBase
 
-from trl_dgpq.rng import SeedStreams
-
-ENV_STREAM = 2  # random-stream id of environment noise (the agent uses others)
+from trl_dgpq.rng import ENV_STREAM, SeedStreams
 
 
 class SeedBatchedEnv(EnvBase):
     """Base for envs with ``batch_size=[len(seeds)]``; seed i's trajectory depends
-    only on seeds[i] and its own actions."""
+    only on seeds[i] and its own actions. ``cfg`` is the subclass's ``Config``
+    (defaults when None); keyword arguments override its fields."""
 
     batch_locked = True
+    Config = None                         # the env's settings dataclass (with a max_steps field)
+    _state_names: Tuple[str, ...] = ()    # tensors that change as the env runs
 
-    def __init__(self, seeds: Sequence[int] = (0,), max_steps: int = 200, device="cpu"):
+    def __init__(self, seeds: Sequence[int] = (0,), cfg=None, device="cpu", **overrides):
+        cfg = replace(cfg if cfg is not None else self.Config(), **overrides)
+        self.cfg = cfg.check()
         seeds = [int(s) for s in seeds]
-        if not seeds:
-            raise ValueError("need at least one seed")
-        if int(max_steps) != max_steps or max_steps < 1:
-            raise ValueError(f"max_steps must be a positive integer, got {max_steps}")
+        if not seeds or min(seeds) < 0:
+            raise ValueError("need at least one seed, each a non-negative integer")
         super().__init__(device=device, batch_size=torch.Size([len(seeds)]))
         self.seeds = seeds
-        self.max_steps = int(max_steps)
+        self.max_steps = int(cfg.max_steps)
         self.rng = SeedStreams(seeds, ENV_STREAM, device=self.device)
         self.t = torch.zeros(len(seeds), dtype=torch.long, device=self.device)
         self._make_specs()
@@ -47,6 +51,13 @@ class SeedBatchedEnv(EnvBase):
     @property
     def num_seeds(self) -> int:
         return len(self.seeds)
+
+    def state_box(self):
+        """(low, high) of the observation, for covering numbers (Section 5)."""
+        spec = self.observation_spec["observation"]
+        if not isinstance(spec, Bounded):
+            raise ValueError(f"{type(self).__name__} has no bounded state space for a covering number")
+        return spec.space.low[0].tolist(), spec.space.high[0].tolist()
 
     # --------------------------------------------------------- subclass API
     def _make_specs(self) -> None:
@@ -70,12 +81,48 @@ class SeedBatchedEnv(EnvBase):
         return out
 
     def _step(self, tensordict: TensorDictBase) -> TensorDict:
-        out, reward, terminated = self._transition(tensordict.get("action"))
+        out, reward, terminated = self._transition(self.check_action(tensordict.get("action")))
         self.t += 1
         truncated = (self.t >= self.max_steps) & ~terminated
         out.update({"reward": reward[:, None], "terminated": terminated[:, None],
                     "truncated": truncated[:, None], "done": (terminated | truncated)[:, None]})
         return out
+
+    def check_action(self, action: torch.Tensor) -> torch.Tensor:
+        """The action as the spec wants it, or a ValueError saying what is wrong.
+        Discrete: indices of shape (S,) in [0, n); integral floats are cast, nothing
+        else is (a negative index would silently count from the end)."""
+        spec = self.action_spec
+        shape = tuple(spec.shape)
+        if not torch.is_tensor(action):
+            raise ValueError(f"action must be a tensor of shape {shape}, got {type(action).__name__}")
+        if isinstance(spec, Categorical):
+            n = spec.space.n
+            if tuple(action.shape) != shape:
+                hint = " (one-hot? pass .argmax(-1))" if tuple(action.shape) == shape + (n,) else ""
+                raise ValueError(f"action must be indices of shape {shape} in [0, {n}), "
+                                 f"got shape {tuple(action.shape)}{hint}")
+            if action.dtype == torch.bool or action.is_complex():
+                raise ValueError(f"action must be integer indices in [0, {n}), got dtype {action.dtype}")
+            if action.is_floating_point():
+                if not (torch.isfinite(action) & (action == action.round())).all():
+                    raise ValueError(f"action must be integer indices in [0, {n}), got non-integral "
+                                     f"{action[~(torch.isfinite(action) & (action == action.round()))][:3].tolist()}")
+                action = action.long()
+            bad = (action < 0) | (action >= n)
+            if bad.any():
+                raise ValueError(f"action must be in [0, {n}), got {action[bad][:3].tolist()}")
+            return action.long()
+        if isinstance(spec, Bounded):
+            if tuple(action.shape) != shape:
+                raise ValueError(f"action must have shape {shape}, got {tuple(action.shape)}")
+            low, high = spec.space.low, spec.space.high
+            bad = ~(torch.isfinite(action) & (action >= low) & (action <= high))
+            if bad.any():
+                raise ValueError(f"action must be finite and in [{low.min().item()}, {high.max().item()}], "
+                                 f"got {action[bad][:3].tolist()}")
+            return action.to(spec.dtype)
+        return action
 
     def _set_seed(self, seed: int | None) -> None:
         """Re-key the streams as seeds ``seed, seed + 1, ...`` (TorchRL's convention);
@@ -86,3 +133,29 @@ class SeedBatchedEnv(EnvBase):
 
     def _td(self, **tensors) -> TensorDict:
         return TensorDict(tensors, batch_size=self.batch_size, device=self.device)
+
+    # ------------------------------------------------------------- state
+    def state_dict(self, *args, **kwargs) -> dict:
+        """Step counters, random streams and the subclass's ``_state_names`` tensors."""
+        return {"t": self.t.clone(), "rng": self.rng.state_dict(),
+                **{name: getattr(self, name).clone() for name in self._state_names}}
+
+    def load_state_dict(self, state: dict, strict: bool = True) -> None:
+        if state["t"].shape != self.t.shape:
+            raise ValueError(f"env state is for {state['t'].shape[0]} seeds, this env has {self.num_seeds}")
+        self.rng.load_state_dict(state["rng"])
+        self.t.copy_(state["t"])
+        for name in self._state_names:
+            getattr(self, name).copy_(state[name])
+
+
+def discrete_actions(env, who: str = "this agent") -> int:
+    """Number of actions of a discrete (Categorical) action spec; a clear error otherwise."""
+    spec = env.action_spec
+    if not isinstance(spec, Categorical):
+        raise ValueError(f"{who} needs discrete actions; this env's action spec is {type(spec).__name__}")
+    return int(spec.space.n)
+
+
+def observation_dim(env) -> int:
+    return int(env.observation_spec["observation"].shape[-1])

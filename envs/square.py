@@ -1,49 +1,64 @@
 """The 2-D square of GWH14's first experiment (seed report 4.1), batched over seeds.
 
-State in [0, 1]^2, start (0, 0). Actions 0..3 move 0.1 north / south / east / west,
-plus uniform noise in [-0.01, 0.01] on the moved axis (from the seed's own stream);
-the result is clipped to the square. Reaching Euclidean distance <= 0.15 from
-(1, 1) terminates; the step cap (200) truncates. Rewards:
-  "shaped": r = 2 - |(1, 1) - s'|_2
+State in [0, 1]^2, start (0, 0). Actions 0..3 move ``step_size`` north / south /
+east / west, plus uniform noise in [-noise, noise] on the moved axis (from the
+seed's own stream); the result is clipped to the square. Reaching Euclidean
+distance <= ``goal_radius`` from the goal terminates; the step cap truncates.
+Rewards:
+  "shaped": r = 2 - |goal - s'|_2
   "paper":  r = -1 per step, 0 on reaching the goal
 """
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+from typing import Tuple
+
 import torch
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
-from .base import SeedBatchedEnv
+from trl_dgpq.config import setting
 
-# name -> env settings and DGPQ settings (SPEC 3.1). V_max of "shaped" is R_max / (1 - gamma).
-PRESETS = {
-    "shaped": dict(env=dict(reward="shaped"),
-                   agent=dict(gamma=0.01, lipschitz=1.0, v_max=2.0 / 0.99, lengthscale=0.05, outputscale=1.0,
-                              noise_var=0.1, sigma_tol2=0.1, eps1=0.001, metric="l1")),
-    "report": dict(env=dict(reward="shaped"),
-                   agent=dict(gamma=0.01, lipschitz=9.0, v_max=400.0, lengthscale=0.05, outputscale=1.0,
-                              noise_var=0.1, sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0,
-                              metric="l1")),
-    "paper": dict(env=dict(reward="paper"),
-                  agent=dict(gamma=1.0, lipschitz=9.0, v_max=0.0, lengthscale=0.05, outputscale=0.5,
-                             noise_var=0.1, sigma_tol2=0.1, eps1=0.001, metric="l1")),
-}
+from .base import SeedBatchedEnv
 
 MOVES = ((0.0, 1.0), (0.0, -1.0), (1.0, 0.0), (-1.0, 0.0))  # N, S, E, W
 REWARDS = ("shaped", "paper")
 
 
+@dataclass
+class SquareConfig:
+    """The 2-D square (SPEC 3.1)."""
+    reward: str = setting("shaped", "shaped: 2 - |goal - s|_2 per step; paper: -1 per step, 0 at the goal",
+                          choices=REWARDS)
+    max_steps: int = setting(200, "step cap per episode (truncation, not termination)")
+    step_size: float = setting(0.1, "length of a move")
+    noise: float = setting(0.01, "uniform noise on the moved axis, in [-noise, noise]")
+    goal: Tuple[float, ...] = setting((1.0, 1.0), "goal position, e.g. 1,1")
+    goal_radius: float = setting(0.15, "episode ends (terminated) within this Euclidean distance of the goal")
+
+    def check(self) -> "SquareConfig":
+        if self.max_steps < 1:
+            raise ValueError(f"max_steps must be a positive integer, got {self.max_steps}")
+        if not (math.isfinite(self.step_size) and self.step_size > 0):
+            raise ValueError(f"step_size must be > 0, got {self.step_size}")
+        if not (math.isfinite(self.noise) and self.noise >= 0):
+            raise ValueError(f"noise must be >= 0, got {self.noise}")
+        if not (math.isfinite(self.goal_radius) and self.goal_radius > 0):
+            raise ValueError(f"goal_radius must be > 0, got {self.goal_radius}")
+        if len(self.goal) != 2 or not all(0 <= g <= 1 for g in self.goal):
+            raise ValueError(f"goal must be two numbers in [0, 1], got {self.goal}")
+        return self
+
+
 class SquareEnv(SeedBatchedEnv):
     """TorchRL env, ``batch_size=[len(seeds)]``; observations are float64 ``(S, 2)``."""
 
-    def __init__(self, seeds=(0,), reward: str = "shaped", max_steps: int = 200, step_size: float = 0.1,
-                 noise: float = 0.01, goal=(1.0, 1.0), goal_radius: float = 0.15, device="cpu"):
-        if reward not in REWARDS:
-            raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
-        if not (step_size > 0 and noise >= 0 and goal_radius > 0):
-            raise ValueError("need step_size > 0, noise >= 0 and goal_radius > 0")
-        self.reward_type, self.step_size, self.noise, self.goal_radius = reward, step_size, noise, goal_radius
-        super().__init__(seeds, max_steps, device)
-        self.goal = torch.tensor(goal, dtype=torch.float64, device=self.device)
+    Config = SquareConfig
+    _state_names = ("pos",)
+
+    def __init__(self, seeds=(0,), cfg: SquareConfig | None = None, device="cpu", **overrides):
+        super().__init__(seeds, cfg, device, **overrides)
+        self.goal = torch.tensor(self.cfg.goal, dtype=torch.float64, device=self.device)
         self.moves = torch.tensor(MOVES, dtype=torch.float64, device=self.device)
         self.pos = torch.zeros(self.num_seeds, 2, dtype=torch.float64, device=self.device)
 
@@ -60,11 +75,12 @@ class SquareEnv(SeedBatchedEnv):
         return self._td(observation=self.pos.clone())
 
     def _transition(self, action):
-        jitter = (2.0 * self.rng.uniform(1) - 1.0) * self.noise            # (S, 1), the seed's own stream
-        self.pos = (self.pos + self.moves[action] * (self.step_size + jitter)).clamp(0.0, 1.0)
+        cfg = self.cfg
+        jitter = (2.0 * self.rng.uniform(1) - 1.0) * cfg.noise            # (S, 1), the seed's own stream
+        self.pos.copy_((self.pos + self.moves[action] * (cfg.step_size + jitter)).clamp(0.0, 1.0))
         dist = torch.linalg.vector_norm(self.goal - self.pos, dim=-1)
-        terminated = dist <= self.goal_radius
-        if self.reward_type == "shaped":
+        terminated = dist <= cfg.goal_radius
+        if cfg.reward == "shaped":
             reward = 2.0 - dist
         else:
             reward = torch.where(terminated, 0.0, -1.0).to(torch.float64)

@@ -11,16 +11,13 @@ import argparse
 import json
 import math
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from trl_dgpq.gp import ExactGP, RBFKernel, SparseOnlineGP  # noqa: E402
+from trl_dgpq.gp import ExactGP, RBFKernel, SparseOnlineGP
 
 LS, NOISE, DIM = 0.05, 0.1, 2
 
@@ -133,11 +130,12 @@ def bench_dgpq(args):
     early = the first ``--window`` steps of fresh runs, late = consecutive windows
     from step ``--steps`` on of one long run.
     """
-    from collectors.experiment import build, resolve_config
-    from collectors.online import OnlineCollector
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    from trl_dgpq.collectors.online import OnlineCollector
 
     def windows(S, gp, start, fresh):
-        cfg = resolve_config("square", "shaped", list(range(S)), 10 ** 9, agent=dict(gp=gp, budget=args.budget))
+        cfg = resolve_config(env="square", preset="shaped", seeds=list(range(S)), episodes=10 ** 9, gp=gp,
+                             budget=args.budget)
         per_step, env, agent = [], None, None
         for r in range(args.repeats):
             if fresh or env is None:

@@ -4,8 +4,10 @@ import pytest
 import torch
 
 from trl_dgpq.bounds import section5
+from trl_dgpq.config import with_overrides
 from trl_dgpq.dgpq import DGPQ, DGPQConfig, argmax_random_ties
 from trl_dgpq.qhat import LipschitzQ
+from trl_dgpq.rng import SeedStreams
 
 D = torch.float64
 
@@ -61,14 +63,19 @@ def test_ties_are_uniform_from_the_seed_stream():
 
 
 # ---------------------------------------------------------------- steps 3-6
-def agent_1d(**kw):
+def config(**kw):
+    """DGPQConfig with settings by name (nested GP settings included)."""
+    return with_overrides(DGPQConfig(), kw)
+
+
+def agent_1d(seeds=(0,), **kw):
     cfg = dict(gamma=0.5, lipschitz=1.0, v_max=10.0, sigma_tol2=0.1, eps1=0.01, noise_var=0.1,
                lengthscale=0.1, outputscale=1.0, gp="exact")
-    return DGPQ(DGPQConfig(**{**cfg, **kw}), seeds=[0], state_dim=1, num_actions=2)
+    return DGPQ(config(**{**cfg, **kw}), seeds=list(seeds), state_dim=1, num_actions=2)
 
 
 def step(agent, s, a, r, s_next, terminal=False):
-    return agent.observe(t([[s]]), torch.tensor([a]), t([r]), t([[s_next]]), torch.tensor([terminal]))
+    return agent.learn(t([[s]]), torch.tensor([a]), t([r]), t([[s_next]]), torch.tensor([terminal]))
 
 
 def test_q_target_bootstraps_on_qhat_except_at_terminal():
@@ -113,8 +120,8 @@ def test_overwrite_needs_a_value_2eps1_below_qhat():
 
 
 def test_inactive_seeds_learn_nothing():
-    ag = DGPQ(DGPQConfig(gp="exact"), seeds=[0, 1], state_dim=1, num_actions=2)
-    out = ag.observe(t([0.5], [0.5]), torch.tensor([0, 0]), t(-1.0, -1.0), t([0.6], [0.6]),
+    ag = DGPQ(config(gp="exact"), seeds=[0, 1], state_dim=1, num_actions=2)
+    out = ag.learn(t([0.5], [0.5]), torch.tensor([0, 0]), t(-1.0, -1.0), t([0.6], [0.6]),
                      torch.tensor([False, False]), active=torch.tensor([False, True]))
     assert out["learn"].tolist() == [False, True]
     assert ag.qhat.size().tolist() == [0, 1]
@@ -127,13 +134,14 @@ def test_section5_reproduces_the_report_values():
     assert tol == pytest.approx(3.05e-4, rel=0.01)
     with pytest.raises(ValueError, match="gamma"):
         section5(1.0, 0.96, 1.0, 2.0, 9.0, 4, 0.1)
-    cfg = DGPQConfig(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0, lipschitz=9.0).resolve(4)
+    cfg = config(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0, lipschitz=9.0,
+                 covering="unit-square").resolve(4)
     assert math.isclose(cfg.sigma_tol2, tol) and math.isclose(cfg.eps1, eps1)
 
 
 @pytest.mark.parametrize("bad,match", [(dict(gamma=1.5), "gamma"), (dict(noise_var=-0.1), "noise_var"),
-                                       (dict(gp="gpytorch"), "gp"), (dict(metric="l3"), "metric"),
+                                       (dict(metric="l3"), "metric"),
                                        (dict(sigma_tol2=None), "Section 5"), (dict(budget=0), "budget")])
 def test_config_rejects_bad_values(bad, match):
     with pytest.raises(ValueError, match=match):
-        DGPQConfig(**bad).resolve(4)
+        config(**bad).resolve(4)

@@ -4,8 +4,9 @@ import pandas as pd
 import pytest
 import torch
 
-from collectors.experiment import TIMING_COLUMNS, build, resolve_config, run_experiment
-from collectors.online import OnlineCollector
+from trl_dgpq.collectors.experiment import TIMING_COLUMNS, build, resolve_config, run_experiment
+from trl_dgpq.collectors.online import OnlineCollector
+from trl_dgpq.config import with_overrides
 from trl_dgpq.dgpq import DGPQConfig
 from trl_dgpq.gp import ExactGP, ManifoldKernel, RBFKernel, fit
 from trl_dgpq.gp.train import _nll
@@ -66,13 +67,12 @@ def test_fit_shared_rbf_kernel_and_refuses_the_sparse_gp():
 
 def test_manifold_needs_the_exact_backend():
     with pytest.raises(ValueError, match="exact"):
-        DGPQConfig(kernel="manifold", gp="sparse").resolve(4)
+        with_overrides(DGPQConfig(), dict(kernel="manifold", gp="sparse")).resolve(4)
 
 
 def manifold_config(seeds, **kw):
-    agent = dict(gp="exact", kernel="manifold", kernel_train_every=25, kernel_min_points=5,
-                 kernel_train_steps=10, **kw)
-    return resolve_config("square", "report", seeds, 2, agent=agent, env_kwargs=dict(max_steps=100))
+    return resolve_config(preset="report", seeds=seeds, episodes=2, gp="exact", kernel="manifold",
+                          kernel_train_every=25, kernel_min_points=5, kernel_train_steps=10, max_steps=100, **kw)
 
 
 def test_no_nan_over_2000_dgpq_steps():

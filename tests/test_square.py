@@ -8,9 +8,9 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
-from collectors.experiment import TIMING_COLUMNS, parse_seeds, resolve_config, run_experiment
-from collectors.online import OnlineCollector
-from envs import SquareEnv
+from trl_dgpq.collectors.experiment import TIMING_COLUMNS, parse_seeds, resolve_config, run_experiment
+from trl_dgpq.collectors.online import OnlineCollector
+from trl_dgpq.envs import SquareEnv
 from trl_dgpq.rng import SeedStreams, splitmix64, splitmix64_reference
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -75,11 +75,11 @@ def test_truncation_is_not_terminal_for_the_learner():
         def __init__(self):
             self.terminal = []
 
-        def act(self, s):
-            return torch.zeros(s.shape[0], dtype=torch.long)
+        def act(self, td):
+            return torch.zeros(td.shape[0], dtype=torch.long)
 
-        def observe(self, s, a, r, s_next, terminal, active):
-            self.terminal.append(terminal.clone())
+        def observe(self, td, active):
+            self.terminal.append(td["next", "terminated"][:, 0].clone())
 
         def episode_stats(self):
             return {}
@@ -90,8 +90,8 @@ def test_truncation_is_not_terminal_for_the_learner():
     assert (df.steps == 4).all() and not df.terminated.any() and len(df) == 4
 
 
-def small(seeds, episodes=6, **agent):
-    return resolve_config("square", "shaped", seeds, episodes, agent=agent)
+def small(seeds, episodes=6, **settings):
+    return resolve_config(preset="shaped", seeds=seeds, episodes=episodes, **settings)
 
 
 def drop_timing(df):
@@ -120,7 +120,7 @@ def test_determinism_and_batch_composition_invariance():
 @pytest.mark.parametrize("gp", ["exact", "sparse"])
 def test_backends_run_the_report_and_paper_presets(gp):
     for preset in ("report", "paper"):
-        df = run_experiment(resolve_config("square", preset, [0], 1, agent=dict(gp=gp, budget=20)), progress=False)
+        df = run_experiment(resolve_config(preset=preset, seeds=[0], episodes=1, gp=gp, budget=20), progress=False)
         assert len(df) == 1 and 1 <= df.steps[0] <= 200
 
 

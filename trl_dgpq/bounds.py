@@ -4,16 +4,39 @@
     N_S       = N_S(eps (1 - gamma) / (3 L_Q))          covering number of the state space
     kappa     = |A| N_S (3 R_max / ((1 - gamma)^2 eps) + 1)
     sigma_tol2 = 2 w_n^2 eps^2 (1 - gamma)^4 / (9 R_max^2 ln(6 |A| N_S (1 + kappa) / delta))
+
+N_S comes from the env's state box and the metric (``box_covering``); the seed
+report's formula for the unit square (``unit_square_covering``) stays available
+to reproduce its numbers.
 """
 from __future__ import annotations
 
 import math
-from typing import Callable, Tuple
+from typing import Callable, Sequence, Tuple
+
+# Side of the largest axis-aligned cube inside a ball of radius r in d dimensions.
+_CUBE_IN_BALL = {"l1": lambda r, d: 2 * r / d, "l2": lambda r, d: 2 * r / math.sqrt(d), "linf": lambda r, d: 2 * r}
 
 
 def unit_square_covering(r: float) -> int:
     """N_S(r) for the unit square, as the seed report used: ceil(1 / (pi r^2))."""
     return math.ceil(1.0 / (math.pi * r * r))
+
+
+def box_covering(low: Sequence[float], high: Sequence[float], metric: str) -> Callable[[float], int]:
+    """N_S(r) for the box [low, high] under ``metric``: a grid of cubes, each inside one
+    ball of radius r (side 2r/d for L1, 2r/sqrt(d) for L2, 2r for Linf), covers the box
+    with prod_i ceil(width_i / side) balls."""
+    if metric not in _CUBE_IN_BALL:
+        raise ValueError(f"metric must be one of {sorted(_CUBE_IN_BALL)}, got {metric!r}")
+    widths = [float(h) - float(lo) for lo, h in zip(low, high)]
+    if not widths or not all(math.isfinite(w) and w >= 0 for w in widths):
+        raise ValueError(f"the state box must be finite, got low={list(low)}, high={list(high)}")
+
+    def covering(r: float) -> int:
+        side = _CUBE_IN_BALL[metric](r, len(widths))
+        return math.prod(max(1, math.ceil(w / side)) for w in widths)
+    return covering
 
 
 def section5(eps: float, delta: float, gamma: float, r_max: float, lipschitz: float,

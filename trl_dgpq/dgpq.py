@@ -15,95 +15,81 @@ GP_a has prior mean Q̂_a: it is fed residuals q_t - Q̂_a(s_t), so its mean is
 Q̂_a(s) + residual mean. Q̂ changes only in step 6, after which the GPs are
 emptied, so stored residuals never go stale. Only the taken action's GP of each
 seed is evaluated or updated (the GP backend gathers those rows).
+
+As an agent of the runner (``trl_dgpq.agents``), ``act(td)`` and ``observe(td,
+active)`` read the TensorDicts of a TorchRL env and call ``select_action`` (step
+1) and ``learn`` (steps 3-6).
 """
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
-from typing import Optional, Sequence, Tuple
+from dataclasses import dataclass
+from typing import Optional, Sequence
 
 import torch
 
-from .bounds import section5
-from .gp import ExactGP, ManifoldKernel, RBFKernel, SparseOnlineGP
-from .gp.train import fit
+from .envs.base import discrete_actions, observation_dim
+from .bounds import box_covering, section5, unit_square_covering
+from .config import nested, setting
+from .gp import GPConfig, fit, make_gp, make_kernel
 from .qhat import METRICS, LipschitzQ
-from .rng import SeedStreams
+from .rng import TIE_STREAM, SeedStreams
 
-GP_BACKENDS = {"exact": ExactGP, "sparse": SparseOnlineGP}
-TIE_STREAM = 1  # the agent's random stream id (the env uses others)
-KERNEL_STREAM = 3  # initial weights of manifold kernels
-KERNELS = ("rbf", "manifold")
+COVERINGS = ("env", "unit-square")
 
 
 @dataclass
 class DGPQConfig:
-    """Hyperparameters of Algorithm 1. Give ``sigma_tol2`` and ``eps1`` directly, or
-    leave them None and give ``eps``, ``delta`` and ``r_max`` to derive them by
-    Section 5 (``resolve``)."""
-    gamma: float = 0.01
-    lipschitz: float = 1.0          # L_Q
-    v_max: float = 2.0 / 0.99
-    sigma_tol2: Optional[float] = 0.1
-    eps1: Optional[float] = 0.001
-    eps: Optional[float] = None     # Section 5 accuracy
-    delta: Optional[float] = None   # Section 5 confidence
-    r_max: Optional[float] = None
-    noise_var: float = 0.1          # omega_n^2
-    lengthscale: float = 0.05       # theta
-    outputscale: float = 1.0        # s_f^2
-    metric: str = "l1"
-    gp: str = "sparse"
-    budget: int = 100               # sparse GP basis vectors
-    novelty_tol: float = 1e-3       # sparse GP novelty threshold
-    capacity: int = 64              # initial storage (exact GP points, Q̂ pairs); grows
-    kernel: str = "rbf"             # "manifold": RBF on MLP features, trained by NLL (exact GP only)
-    kernel_hidden: Tuple[int, ...] = (10,)
-    kernel_skip: bool = True        # M(x) = x + MLP(x): starts as the RBF kernel
-    kernel_train_every: int = 20    # train a GP's kernel after this many new points ...
-    kernel_min_points: int = 5      # ... if it then holds at least this many
-    kernel_train_steps: int = 50    # Adam steps per training
-    kernel_lr: float = 0.01
+    """Delayed GP Q-learning (GWH14, Algorithm 1). Give ``sigma_tol2`` and ``eps1``
+    directly, or set them to none and give ``eps``, ``delta`` and ``r_max`` to derive
+    them by Section 5 (``resolve``)."""
+    gamma: float = setting(0.01, "discount gamma")
+    lipschitz: float = setting(1.0, "Lipschitz constant L_Q of the envelope Q̂ (Eq. 7)")
+    v_max: float = setting(2.0 / 0.99, "V_max, the value of Q̂ where nothing is known")
+    sigma_tol2: Optional[float] = setting(0.1, "variance threshold sigma_tol^2 (none: derive by Section 5)")
+    eps1: Optional[float] = setting(0.001, "optimism margin epsilon_1 (none: derive by Section 5)")
+    eps: Optional[float] = setting(None, "Section 5 accuracy epsilon (given alone, derives sigma_tol2 and eps1)")
+    delta: Optional[float] = setting(None, "Section 5 confidence delta")
+    r_max: Optional[float] = setting(None, "Section 5 R_max")
+    covering: str = setting("env", "Section 5 covering number N_S: env (from the env's state box and the "
+                                   "metric) or unit-square (the seed report's ceil(1/(pi r^2)))", choices=COVERINGS)
+    metric: str = setting("l1", "state metric d of Q̂", choices=tuple(METRICS))
+    qhat_capacity: int = setting(64, "initial Q̂ storage, pairs per seed and action (doubles when full)")
+    gp: GPConfig = nested(GPConfig)
 
-    def resolve(self, num_actions: int) -> "DGPQConfig":
-        """Validate, derive Section 5 values where missing; returns self."""
+    @staticmethod
+    def implied(given: dict) -> dict:
+        """Asking for Section 5 (eps or delta) without sigma_tol2 / eps1 derives both."""
+        if {"eps", "delta"} & set(given):
+            return {k: None for k in ("sigma_tol2", "eps1") if k not in given}
+        return {}
+
+    def resolve(self, num_actions: int, state_box=None) -> "DGPQConfig":
+        """Validate, derive Section 5 values where missing; returns self. ``state_box``
+        (low, high) gives the covering number when ``covering`` is "env"."""
         def bad(msg):
             raise ValueError(msg)
         finite = lambda v: v is not None and math.isfinite(v)  # noqa: E731
         if not (finite(self.gamma) and 0 <= self.gamma <= 1):
             bad(f"gamma must be in [0, 1], got {self.gamma}")
-        for name in ("lipschitz", "noise_var", "lengthscale", "outputscale"):
-            v = getattr(self, name)
-            if not (finite(v) and v > 0):
-                bad(f"{name} must be a finite number > 0, got {v}")
+        if not (finite(self.lipschitz) and self.lipschitz > 0):
+            bad(f"lipschitz must be a finite number > 0, got {self.lipschitz}")
         if not finite(self.v_max):
             bad(f"v_max must be finite, got {self.v_max}")
-        if self.metric not in METRICS:
-            bad(f"metric must be one of {sorted(METRICS)}, got {self.metric!r}")
-        if self.gp not in GP_BACKENDS:
-            bad(f"gp must be one of {sorted(GP_BACKENDS)}, got {self.gp!r}")
-        if int(self.budget) != self.budget or self.budget < 1:
-            bad(f"budget must be a positive integer, got {self.budget}")
-        if not (finite(self.novelty_tol) and self.novelty_tol >= 0):
-            bad(f"novelty_tol must be >= 0, got {self.novelty_tol}")
-        if self.kernel not in KERNELS:
-            bad(f"kernel must be one of {KERNELS}, got {self.kernel!r}")
-        self.kernel_hidden = tuple(int(h) for h in self.kernel_hidden)
-        if self.kernel == "manifold":
-            if self.gp != "exact":
-                bad("kernel 'manifold' trains on the GP's data, which only gp 'exact' keeps: use --gp exact")
-            if not self.kernel_hidden or min(self.kernel_hidden) < 1:
-                bad(f"kernel_hidden must be positive widths, got {self.kernel_hidden}")
-            for name in ("kernel_train_every", "kernel_min_points", "kernel_train_steps"):
-                if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
-                    bad(f"{name} must be a positive integer, got {getattr(self, name)}")
-            if not (finite(self.kernel_lr) and self.kernel_lr > 0):
-                bad(f"kernel_lr must be > 0, got {self.kernel_lr}")
+        if self.qhat_capacity < 1:
+            bad(f"qhat_capacity must be a positive integer, got {self.qhat_capacity}")
+        self.gp.check()
         if self.sigma_tol2 is None or self.eps1 is None:
             if None in (self.eps, self.delta, self.r_max):
                 bad("give sigma_tol2 and eps1, or eps, delta and r_max to derive them (Section 5)")
+            if self.covering == "unit-square":
+                covering = unit_square_covering
+            elif state_box is None:
+                bad("Section 5 with covering 'env' needs the env's state box")
+            else:
+                covering = box_covering(*state_box, self.metric)
             eps1, sigma_tol2 = section5(self.eps, self.delta, self.gamma, self.r_max, self.lipschitz,
-                                        num_actions, self.noise_var)
+                                        num_actions, self.gp.noise_var, covering)
             self.eps1 = eps1 if self.eps1 is None else self.eps1
             self.sigma_tol2 = sigma_tol2 if self.sigma_tol2 is None else self.sigma_tol2
         if not (finite(self.sigma_tol2) and self.sigma_tol2 > 0):
@@ -111,35 +97,6 @@ class DGPQConfig:
         if not (finite(self.eps1) and self.eps1 >= 0):
             bad(f"eps1 must be >= 0, got {self.eps1}")
         return self
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "DGPQConfig":
-        names = {f.name for f in fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise ValueError(f"unknown DGPQ settings: {sorted(unknown)}")
-        return cls(**d)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-
-def make_kernel(cfg: DGPQConfig, dim: int, seeds: Sequence[int], num_actions: int):
-    """The config's kernel; a manifold kernel gets one feature map per (seed, action)
-    GP, initialised from each seed's own random stream."""
-    if cfg.kernel == "rbf":
-        return RBFKernel(cfg.lengthscale, cfg.outputscale)
-    streams = SeedStreams(seeds, stream=KERNEL_STREAM)
-    uniform = lambda n, count: streams.uniform(num_actions * count).reshape(n, count)  # noqa: E731
-    return ManifoldKernel(len(seeds) * num_actions, dim, cfg.kernel_hidden, cfg.lengthscale, cfg.outputscale,
-                          skip=cfg.kernel_skip, uniform=uniform)
-
-
-def make_gp(cfg: DGPQConfig, dim: int, batch_shape, kernel, device=None):
-    """The GP backend named by ``cfg.gp`` with ``kernel`` and the config's noise."""
-    extra = (dict(budget=cfg.budget, novelty_tol=cfg.novelty_tol) if cfg.gp == "sparse"
-             else dict(capacity=cfg.capacity))
-    return GP_BACKENDS[cfg.gp](kernel, cfg.noise_var, dim, batch_shape=batch_shape, device=device, **extra)
 
 
 def argmax_random_ties(q: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
@@ -153,15 +110,18 @@ def argmax_random_ties(q: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
 class DGPQ:
     """Algorithm 1 for S seeds at once (one Q̂ and |A| GPs per seed)."""
 
+    Config = DGPQConfig
+    COUNTERS = ("since_fit", "kernel_fits", "qhat_updates", "gp_adds")
+
     def __init__(self, cfg: DGPQConfig, seeds: Sequence[int], state_dim: int, num_actions: int,
-                 kernel=None, device=None):
-        self.cfg = cfg.resolve(num_actions)
+                 kernel=None, device=None, state_box=None):
+        self.cfg = cfg.resolve(num_actions, state_box)
         self.S, self.A = len(seeds), num_actions
         self.qhat = LipschitzQ(self.S, num_actions, state_dim, cfg.lipschitz, cfg.v_max, cfg.metric,
-                               capacity=cfg.capacity, device=device)
-        kernel = kernel if kernel is not None else make_kernel(cfg, state_dim, seeds, num_actions)
-        self.gp = make_gp(cfg, state_dim, (self.S, num_actions), kernel, device)
-        self.trains_kernel = cfg.kernel == "manifold"
+                               capacity=cfg.qhat_capacity, device=device)
+        kernel = kernel if kernel is not None else make_kernel(cfg.gp, state_dim, seeds, num_actions)
+        self.gp = make_gp(cfg.gp, state_dim, (self.S, num_actions), kernel, device)
+        self.trains_kernel = cfg.gp.kernel == "manifold"
         self.since_fit = torch.zeros(self.S, num_actions, dtype=torch.long, device=device)
         self.kernel_fits = torch.zeros(self.S, dtype=torch.long, device=device)
         self.rng = SeedStreams(seeds, stream=TIE_STREAM, device=device)
@@ -169,6 +129,35 @@ class DGPQ:
         self.gp_adds = torch.zeros(self.S, dtype=torch.long, device=device)
         self._memo = (None, -1, None)  # (state tensor, Q̂ version, Q̂ values)
         self._seeds = torch.arange(self.S, device=device)
+
+    # ------------------------------------------------------------ runner API
+    @classmethod
+    def resolve_config(cls, cfg: DGPQConfig, env) -> DGPQConfig:
+        return cfg.resolve(discrete_actions(env, "dgpq"), cls._state_box(cfg, env))
+
+    @classmethod
+    def make(cls, cfg: DGPQConfig, env, seeds: Sequence[int]) -> "DGPQ":
+        return cls(cfg, seeds, observation_dim(env), discrete_actions(env, "dgpq"), device=env.device,
+                   state_box=cls._state_box(cfg, env))
+
+    @staticmethod
+    def _state_box(cfg: DGPQConfig, env):
+        needed = cfg.covering == "env" and (cfg.sigma_tol2 is None or cfg.eps1 is None)
+        return env.state_box() if needed else None
+
+    @staticmethod
+    def memory_bytes(cfg: DGPQConfig, env, num_seeds: int) -> int:
+        """Storage at the start (GPs and Q̂ of every seed and action)."""
+        A, dim = discrete_actions(env, "dgpq"), observation_dim(env)
+        return num_seeds * A * (cfg.gp.bytes_per_gp(dim) + 8 * cfg.qhat_capacity * (dim + 1))
+
+    def act(self, td) -> torch.Tensor:
+        return self.select_action(td.get("observation"))
+
+    def observe(self, td, active: Optional[torch.Tensor] = None) -> dict:
+        nxt = td.get("next")
+        return self.learn(td.get("observation"), td.get("action"), nxt.get("reward").reshape(self.S),
+                          nxt.get("observation"), nxt.get("terminated").reshape(self.S), active)
 
     def qhat_values(self, s: torch.Tensor) -> torch.Tensor:
         """Q̂_a(s) for all actions, (S, A). Memoised on the state tensor and Q̂'s version:
@@ -181,9 +170,9 @@ class DGPQ:
         return q
 
     # Step 1
-    def act(self, s: torch.Tensor) -> torch.Tensor:
+    def select_action(self, s: torch.Tensor) -> torch.Tensor:
         """Greedy action on Q̂ with random tie-breaking. s (S, dim) -> (S,) long."""
-        return argmax_random_ties(self.qhat_values(s), self.rng.uniform(self.A))
+        return argmax_random_ties(self.qhat_values(s.to(torch.float64)), self.rng.uniform(self.A))
 
     # Step 3
     def q_target(self, r: torch.Tensor, s_next: torch.Tensor, terminal: torch.Tensor) -> torch.Tensor:
@@ -214,7 +203,7 @@ class DGPQ:
         self.gp.reset(mask[:, None].expand(self.S, self.A))  # every action's GP of those seeds
         self.qhat_updates += mask
 
-    def observe(self, s, a, r, s_next, terminal, active: Optional[torch.Tensor] = None) -> dict:
+    def learn(self, s, a, r, s_next, terminal, active: Optional[torch.Tensor] = None) -> dict:
         """Steps 3-6 for the transition (s_t, a_t, r_t, s_{t+1}); ``active`` (S,) bool
         masks out seeds that are finished (they learn nothing)."""
         S = self.S
@@ -241,10 +230,10 @@ class DGPQ:
         last training and holds at least ``kernel_min_points``, fit its feature map and
         hyperparameters to the (s, residual) pairs it holds by NLL, and rebuild it."""
         self.since_fit += added
-        due = (self.since_fit >= self.cfg.kernel_train_every) & (self.gp.size >= self.cfg.kernel_min_points)
+        g = self.cfg.gp
+        due = (self.since_fit >= g.kernel_train_every) & (self.gp.size >= g.kernel_min_points)
         if due.any():
-            fit(self.gp, due, steps=self.cfg.kernel_train_steps, lr=self.cfg.kernel_lr,
-                min_points=self.cfg.kernel_min_points)
+            fit(self.gp, due, steps=g.kernel_train_steps, lr=g.kernel_lr, min_points=g.kernel_min_points)
             self.since_fit[due] = 0
             self.kernel_fits += due.sum(-1)
 
@@ -255,3 +244,16 @@ class DGPQ:
         if self.trains_kernel:
             stats["kernel_fits"] = self.kernel_fits
         return stats
+
+    def state_dict(self) -> dict:
+        """Q̂, the GPs (with their kernel), the tie stream and the counters."""
+        return {"qhat": self.qhat.state_dict(), "gp": self.gp.state_dict(), "rng": self.rng.state_dict(),
+                **{name: getattr(self, name).clone() for name in self.COUNTERS}}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.qhat.load_state_dict(state["qhat"])
+        self.gp.load_state_dict(state["gp"])
+        self.rng.load_state_dict(state["rng"])
+        for name in self.COUNTERS:
+            getattr(self, name).copy_(state[name])
+        self._memo = (None, -1, None)

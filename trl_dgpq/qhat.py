@@ -98,5 +98,14 @@ class LipschitzQ:
         pad = lambda t, fill: torch.cat((t, torch.full_like(t, fill)), 2)  # noqa: E731
         self.s, self.mu = pad(self.s, 0), pad(self.mu, torch.inf)
 
-    def state_dict(self):
-        return {"s": self.s, "mu": self.mu}
+    def state_dict(self) -> dict:
+        """Every field, including grown storage, ``width`` and ``version``."""
+        return {"s": self.s.clone(), "mu": self.mu.clone(), "width": self.width, "version": self.version}
+
+    def load_state_dict(self, state: dict) -> None:
+        s, mu = state["s"], state["mu"]
+        if s.shape[:2] != (self.S, self.A) or s.shape[-1] != self.dim or mu.shape != s.shape[:-1]:
+            raise ValueError(f"Q̂ state has shape {tuple(s.shape)}, expected ({self.S}, {self.A}, capacity, {self.dim})")
+        self.s = s.to(dtype=self.s.dtype, device=self.s.device).clone()
+        self.mu = mu.to(dtype=self.mu.dtype, device=self.mu.device).clone()
+        self.width, self.version = int(state["width"]), int(state["version"])

@@ -15,6 +15,14 @@ import torch
 
 _M64 = (1 << 64) - 1
 
+# Every random-stream id in one place: each consumer draws from its own stream, so
+# one consumer drawing more or less never shifts another's numbers. A new consumer
+# takes a new number.
+TIE_STREAM = 1     # DGPQ: tie-breaking among equal Q̂ values
+ENV_STREAM = 2     # environment noise
+KERNEL_STREAM = 3  # initial weights of manifold kernels
+POLICY_STREAM = 4  # random agent's actions
+
 
 def _signed(c: int) -> int:
     return c - (1 << 64) if c >= 1 << 63 else c
@@ -84,5 +92,12 @@ class SeedStreams:
         self.counter += 1
         return self._buf[:, i].view(-1, *shape)
 
-    def state_dict(self):
+    def state_dict(self) -> dict:
         return {"key": self.key.clone(), "counter": self.counter}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Continue from a saved position; the key must be the same seeds' and stream's."""
+        if not torch.equal(state["key"].to(self.key.device), self.key):
+            raise ValueError("random-stream state belongs to other seeds or another stream")
+        self.counter = int(state["counter"])
+        self._buf, self._buf_start, self._buf_shape = None, 0, None  # values do not depend on buffering

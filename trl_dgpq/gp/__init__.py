@@ -12,10 +12,10 @@
 from .base import BatchedGP, GPNumericalError
 from .exact import ExactGP
 from .kernels import RBFKernel
+from .manifold import ManifoldKernel
 from .sparse import SparseOnlineGP
+from .train import fit
+from .factory import GP_BACKENDS, KERNELS, GPConfig, make_gp, make_kernel  # noqa: E402
 
-__all__ = ["BatchedGP", "GPNumericalError", "ExactGP", "SparseOnlineGP", "RBFKernel"]
-from .manifold import ManifoldKernel  # noqa: E402
-from .train import fit  # noqa: E402
-
-__all__ += ["ManifoldKernel", "fit"]
+__all__ = ["BatchedGP", "GPNumericalError", "ExactGP", "SparseOnlineGP", "RBFKernel", "ManifoldKernel", "fit",
+           "GPConfig", "GP_BACKENDS", "KERNELS", "make_gp", "make_kernel"]

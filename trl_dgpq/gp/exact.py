@@ -58,6 +58,15 @@ class ExactGP(BatchedGP):
                 new = min(new, self.max_capacity)
             self._grow(new)
 
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # A saved GP may have grown: take its capacity before the buffers are copied.
+        X = state_dict.get(prefix + "X")
+        if X is not None and X.shape[1] != self.capacity:
+            self.capacity = X.shape[1]
+            for k, t in self._empty_state(self.num_gps).items():
+                setattr(self, k, t)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
     def _grow(self, new: int) -> None:
         old = self.capacity
         self.capacity = new

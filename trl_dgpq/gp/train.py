@@ -50,20 +50,23 @@ def fit(gp: ExactGP, mask: Optional[torch.Tensor] = None, steps: int = 100, lr: 
     """
     if not isinstance(gp, ExactGP):
         raise TypeError("fitting needs the GP's data: use ExactGP (the sparse GP keeps only basis vectors)")
-    sel = torch.ones(gp.num_gps, dtype=torch.bool) if mask is None else mask.reshape(-1).to(torch.bool)
+    dev = gp.device
+    sel = (torch.ones(gp.num_gps, dtype=torch.bool, device=dev) if mask is None
+           else mask.reshape(-1).to(device=dev, dtype=torch.bool))
     sel = sel & (gp.n >= min_points)
     rows = sel.nonzero().squeeze(-1)
-    empty = dict(rows=rows, nll_before=torch.zeros(0), nll_after=torch.zeros(0), frozen=torch.zeros(0, dtype=torch.bool))
     if rows.numel() == 0:
-        return empty
+        none = torch.zeros(0, dtype=gp.dtype, device=dev)
+        return dict(rows=rows, nll_before=none, nll_after=none.clone(),
+                    frozen=torch.zeros(0, dtype=torch.bool, device=dev))
     m = int(gp.n[rows].max())
     X, Y = gp.X[rows, :m].clone(), gp.Y[rows, :m].clone()
-    valid = torch.arange(m) < gp.n[rows][:, None]
+    valid = torch.arange(m, device=dev) < gp.n[rows][:, None]
     params = [p for p in gp.kernel.parameters() if p.requires_grad]
     snapshot = [p.detach().clone() for p in params]
     raw_noise = gp.noise[rows].log().clone().requires_grad_(train_noise)
     opt = torch.optim.Adam(params + ([raw_noise] if train_noise else []), lr=lr)
-    frozen = torch.zeros(rows.numel(), dtype=torch.bool)
+    frozen = torch.zeros(rows.numel(), dtype=torch.bool, device=dev)
     per_gp = gp._per_gp
 
     def restore(which):
@@ -108,6 +111,8 @@ def fit(gp: ExactGP, mask: Optional[torch.Tensor] = None, steps: int = 100, lr: 
                 if raw_noise.grad is not None:
                     raw_noise.grad[frozen] = 0
             opt.step()
+            if per_gp and frozen.any():  # Adam's momentum would keep moving frozen GPs: undo
+                restore(frozen)
         nll_after, ok = _nll(gp, rows, raw_noise, X, Y, valid)
     bad = ~(ok & torch.isfinite(nll_after)) | ~torch.isfinite(raw_noise.detach())
     if bad.any():
@@ -117,12 +122,14 @@ def fit(gp: ExactGP, mask: Optional[torch.Tensor] = None, steps: int = 100, lr: 
     with torch.no_grad():
         gp.noise[rows] = raw_noise.detach().exp()
         nll_after, _ = _nll(gp, rows, raw_noise.detach(), X, Y, valid)
+    # A kernel shared by all GPs changed for every GP holding data, not only the trained ones.
+    changed = (sel if per_gp else gp.n > 0).view(gp.batch_shape)
     try:
-        gp.refit(sel.view(gp.batch_shape))
+        gp.refit(changed)
     except GPNumericalError as err:  # cannot happen after the checks above, but never leave a broken GP
         with torch.no_grad():
             for p, good in zip(params, snapshot):
                 p.copy_(good)
         log.warning("kernel fit: re-factorisation failed (%s); restored the previous parameters", err)
-        gp.refit(sel.view(gp.batch_shape))
+        gp.refit(changed)
     return dict(rows=rows, nll_before=nll_before, nll_after=nll_after.detach(), frozen=frozen)

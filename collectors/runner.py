@@ -1,0 +1,325 @@
+"""A run in a folder: nothing finished is lost, and an interrupted run continues exactly.
+
+    OUT/config.json     the resolved config + versions and git commit (written once)
+    OUT/status.json     running | finished | interrupted | failed, with the reason
+    OUT/episodes.csv    one row per episode, appended (and flushed) as episodes end;
+                        rewritten sorted by (seed, episode) when the run finishes
+    OUT/checkpoint.pt   env, agent and collector state + how much of episodes.csv
+                        it covers; every ``checkpoint_every`` episodes per seed, on
+                        SIGINT/SIGTERM and at the end
+
+Every file is replaced atomically (written to a temporary file, then renamed), so
+a kill at any moment leaves the previous version whole. ``resume`` truncates
+``episodes.csv`` to what the last checkpoint covers and continues from it; the
+rows it then writes are those the interrupted run had written (same seeds, same
+streams), so the finished file equals an uninterrupted run's, timing aside.
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Optional
+
+import pandas as pd
+import torch
+
+from .experiment import build, check_memory, describe
+from .online import OnlineCollector
+
+CONFIG, EPISODES, STATUS, CHECKPOINT = "config.json", "episodes.csv", "status.json", "checkpoint.pt"
+RUN_FILES = (CONFIG, EPISODES, STATUS, CHECKPOINT)
+CHECKPOINT_FORMAT = 1
+
+
+class RunError(ValueError):
+    """A user-caused problem with the run folder (one line, exit 2)."""
+
+
+class Interrupted(Exception):
+    def __init__(self, signum: int, folder: "RunFolder", episodes_done: int):
+        self.signum, self.folder, self.episodes_done = signum, folder, episodes_done
+        super().__init__(f"interrupted by {signal.Signals(signum).name}")
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum
+
+
+def atomic_write(path: Path, write) -> None:
+    """``write(file)`` into a temporary file beside ``path``, then rename it over ``path``."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def provenance() -> dict:
+    """Versions and the git commit of this code, for config.json."""
+    import numpy
+    import tensordict
+    import torchrl
+    versions = dict(python=sys.version.split()[0], torch=torch.__version__, torchrl=torchrl.__version__,
+                    tensordict=tensordict.__version__, numpy=numpy.__version__, pandas=pd.__version__)
+    root = Path(__file__).resolve().parent.parent
+    git = dict(commit=None, dirty=None)
+    try:
+        out = lambda *a: subprocess.run(["git", *a], cwd=root, capture_output=True, text=True,  # noqa: E731
+                                        timeout=10, check=True).stdout.strip()
+        git["commit"] = out("rev-parse", "HEAD")
+        git["dirty"] = bool(out("status", "--porcelain", "--untracked-files=no"))
+    except (OSError, subprocess.SubprocessError):
+        pass  # not a git checkout (an installed wheel): versions still say what ran
+    return dict(versions=versions, git=git)
+
+
+class RunFolder:
+    """The files of one run (see the module docstring)."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+
+    def file(self, name: str) -> Path:
+        return self.path / name
+
+    def holds_run(self) -> bool:
+        return any(self.file(n).exists() for n in RUN_FILES)
+
+    # ------------------------------------------------------------ creation
+    @classmethod
+    def create(cls, out: Optional[str], name: str, overwrite: bool = False, root: str = "runs") -> "RunFolder":
+        """A new run folder: ``out`` (refused if it holds a run, unless ``overwrite``), or
+        a unique ``root/name-<timestamp>[-k]`` (exclusive mkdir: two runs started in
+        the same second get different folders)."""
+        try:
+            if out is None:
+                base = Path(root) / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+                base.parent.mkdir(parents=True, exist_ok=True)
+                for k in range(1000):
+                    path = base if k == 0 else base.with_name(f"{base.name}-{k}")
+                    try:
+                        path.mkdir()
+                        return cls(path)
+                    except FileExistsError:
+                        continue
+                raise RunError(f"could not create a unique run folder under {root}")
+            folder = cls(out)
+            if folder.path.exists() and not folder.path.is_dir():
+                raise RunError(f"--out {out} exists and is not a folder")
+            if folder.holds_run():
+                if not overwrite:
+                    raise RunError(f"--out {out} holds a run: continue it with --resume {out}, "
+                                   f"replace it with --overwrite, or choose another folder")
+                for n in RUN_FILES:
+                    if folder.file(n).exists():
+                        folder.file(n).unlink()
+            elif folder.path.exists() and any(folder.path.iterdir()):
+                raise RunError(f"--out {out} is not empty and holds no run: choose another folder")
+            folder.path.mkdir(parents=True, exist_ok=True)
+            probe = folder.file(f".write-test-{os.getpid()}")
+            probe.touch()
+            probe.unlink()
+            return folder
+        except PermissionError as err:
+            raise RunError(f"cannot write the run folder: {err.strerror}: {err.filename}") from None
+        except OSError as err:
+            raise RunError(f"cannot create the run folder: {err.strerror or err}: {err.filename or out}") from None
+
+    @classmethod
+    def existing(cls, path) -> "RunFolder":
+        folder = cls(path)
+        if not folder.file(CONFIG).is_file():
+            raise RunError(f"{path} holds no run to resume (no {CONFIG})")
+        if not os.access(folder.path, os.W_OK):
+            raise RunError(f"cannot write to {path}")
+        return folder
+
+    # ------------------------------------------------------------ files
+    def write_json(self, name: str, obj: dict) -> None:
+        atomic_write(self.file(name), lambda f: f.write((json.dumps(obj, indent=2) + "\n").encode()))
+
+    def read_json(self, name: str) -> Optional[dict]:
+        try:
+            return json.loads(self.file(name).read_text())
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError) as err:
+            raise RunError(f"cannot read {self.file(name)}: {err}") from None
+
+    def set_status(self, status: str, reason: Optional[str] = None, **info) -> None:
+        self.write_json(STATUS, dict(status=status, reason=reason, time=time.strftime("%Y-%m-%d %H:%M:%S"),
+                                     pid=os.getpid(), **info))
+
+    def status(self) -> Optional[dict]:
+        return self.read_json(STATUS)
+
+    def append_rows(self, rows) -> int:
+        """Append rows to episodes.csv (header first if new), flushed; returns its size."""
+        path = self.file(EPISODES)
+        new = not path.exists() or path.stat().st_size == 0
+        with open(path, "a", newline="") as f:
+            pd.DataFrame(rows).to_csv(f, header=new, index=False)
+            f.flush()
+            return f.tell()
+
+    def csv_size(self) -> int:
+        path = self.file(EPISODES)
+        return path.stat().st_size if path.exists() else 0
+
+    def truncate_csv(self, size: int) -> None:
+        path = self.file(EPISODES)
+        if size == 0:
+            if path.exists():
+                path.unlink()
+            return
+        if self.csv_size() < size:
+            raise RunError(f"{path} is shorter than its checkpoint says ({self.csv_size()} < {size} bytes)")
+        os.truncate(path, size)
+
+    def episodes(self) -> pd.DataFrame:
+        return pd.read_csv(self.file(EPISODES), float_precision="round_trip")
+
+    def finalize_csv(self) -> pd.DataFrame:
+        """Rewrite episodes.csv sorted by (seed, episode), atomically."""
+        df = self.episodes().sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
+        buf = io.StringIO()
+        df.to_csv(buf, index=False)
+        atomic_write(self.file(EPISODES), lambda f: f.write(buf.getvalue().encode()))
+        return df
+
+    def save_checkpoint(self, state: dict) -> None:
+        atomic_write(self.file(CHECKPOINT), lambda f: torch.save(state, f))
+
+    def load_checkpoint(self) -> Optional[dict]:
+        path = self.file(CHECKPOINT)
+        if not path.exists():
+            return None
+        try:
+            state = torch.load(path, weights_only=True)
+        except Exception as err:  # a damaged file: say so in one line
+            raise RunError(f"cannot read {path}: {err}") from None
+        if state.get("format") != CHECKPOINT_FORMAT:
+            raise RunError(f"{path} has checkpoint format {state.get('format')}, this code reads {CHECKPOINT_FORMAT}")
+        return state
+
+
+@contextmanager
+def deferred_signals():
+    """SIGINT/SIGTERM set a flag instead of raising, so the run stops between steps
+    with its state whole. Yields a dict whose "signum" is set when one arrives."""
+    caught = {"signum": None}
+    if threading.current_thread() is not threading.main_thread():
+        yield caught
+        return
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def handler(signum, frame):
+        caught["signum"] = signum
+    for s in previous:
+        signal.signal(s, handler)
+    try:
+        yield caught
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+def start(config: dict, folder: RunFolder, progress: bool = True) -> pd.DataFrame:
+    """Run ``config`` into the (new) ``folder``."""
+    check_memory(config)
+    folder.write_json(CONFIG, {**config, **provenance()})
+    return _execute(config, folder, None, progress)
+
+
+def resume(folder: RunFolder, progress: bool = True):
+    """Continue the run in ``folder`` from its last checkpoint (from the start if none).
+    Returns (config, episodes DataFrame)."""
+    from .experiment import load_sections  # validates the recorded config
+    status = folder.status() or {}
+    if status.get("status") == "finished":
+        raise RunError(f"{folder.path} is finished; nothing to resume")
+    if status.get("status") == "running" and _alive(status.get("pid")):
+        raise RunError(f"{folder.path} is being run by process {status['pid']}")
+    recorded = folder.read_json(CONFIG)
+    config = {k: recorded[k] for k in ("run", "env", "agent") if k in recorded}
+    try:
+        load_sections(config)
+    except (ValueError, KeyError) as err:
+        raise RunError(f"{folder.file(CONFIG)}: {err}") from None
+    now = provenance()["versions"]
+    changed = {k: (v, now.get(k)) for k, v in recorded.get("versions", {}).items() if now.get(k) != v}
+    if changed:
+        print(f"note: versions differ from the interrupted run: {changed}", file=sys.stderr)
+    check_memory(config)
+    return config, _execute(config, folder, folder.load_checkpoint(), progress)
+
+
+def _alive(pid) -> bool:
+    if not isinstance(pid, int) or pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+        return True
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+
+
+def _execute(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: bool) -> pd.DataFrame:
+    run = config["run"]
+    env, agent = build(config)
+    collector = OnlineCollector(env, agent, run["episodes"], progress=progress, desc=describe(config))
+    csv_bytes = 0
+    if checkpoint is not None:
+        env.load_state_dict(checkpoint["env"])
+        agent.load_state_dict(checkpoint["agent"])
+        collector.load_state_dict(checkpoint["collector"])
+        csv_bytes = int(checkpoint["csv_bytes"])
+    folder.truncate_csv(csv_bytes)  # rows past the checkpoint will be written again, identically
+    every = run["checkpoint_every"] * len(run["seeds"])
+    next_at = (collector.episodes_done // every + 1) * every if every else None
+
+    def save():
+        folder.save_checkpoint(dict(format=CHECKPOINT_FORMAT, csv_bytes=folder.csv_size(),
+                                    episodes_done=collector.episodes_done, env=env.state_dict(),
+                                    agent=agent.state_dict(), collector=collector.state_dict()))
+
+    with deferred_signals() as caught:
+        def after_step(c: OnlineCollector) -> bool:
+            nonlocal next_at
+            if caught["signum"] is not None:
+                return True
+            if next_at is not None and c.episodes_done >= next_at and not c.finished:
+                save()
+                next_at = (c.episodes_done // every + 1) * every
+            return False
+
+        folder.set_status("running", episodes_done=collector.episodes_done)
+        try:
+            collector.run(on_rows=folder.append_rows, after_step=after_step)
+            save()
+        except BaseException as err:
+            folder.set_status("failed", reason=f"{type(err).__name__}: {err}",
+                              episodes_done=collector.episodes_done)
+            raise
+        if caught["signum"] is not None and not collector.finished:
+            name = signal.Signals(caught["signum"]).name
+            folder.set_status("interrupted", reason=name, episodes_done=collector.episodes_done)
+            raise Interrupted(caught["signum"], folder, collector.episodes_done)
+    df = folder.finalize_csv()
+    folder.set_status("finished", episodes_done=collector.episodes_done)
+    return df

@@ -1,0 +1,47 @@
+"""What the runner asks of an agent.
+
+An agent acts for S seeds at once and learns from the TensorDicts the env hands
+the collector. Its settings are one dataclass (``Config``); it is built from
+(config, env, seeds) and keeps seeds independent: seed i alone behaves exactly as
+seed i in any batch. A non-learning agent (a scripted policy) is an agent whose
+``observe`` does nothing.
+"""
+from __future__ import annotations
+
+from typing import Optional, Protocol, Sequence, runtime_checkable
+
+import torch
+from tensordict import TensorDictBase
+
+
+@runtime_checkable
+class Agent(Protocol):
+    Config: type  # settings dataclass; its field defaults are the agent's defaults
+
+    @classmethod
+    def resolve_config(cls, cfg, env):
+        """Validate ``cfg`` for ``env`` (raise ValueError, one line) and fill derived values."""
+
+    @classmethod
+    def make(cls, cfg, env, seeds: Sequence[int]) -> "Agent":
+        """The agent for ``seeds`` on ``env`` (``batch_size=[len(seeds)]``)."""
+
+    @staticmethod
+    def memory_bytes(cfg, env, num_seeds: int) -> int:
+        """Estimated storage, so that runs that cannot fit are refused before they start."""
+
+    def act(self, td: TensorDictBase) -> torch.Tensor:
+        """Actions for the observations in ``td``, one per seed."""
+
+    def observe(self, td: TensorDictBase, active: Optional[torch.Tensor]) -> object:
+        """Learn from the transition ``td`` (with its "next" entries); ``active`` (S,) bool
+        masks out seeds that have finished their episodes."""
+
+    def episode_stats(self) -> dict:
+        """Per-seed numbers for the episode's CSV row, each a tensor (S,)."""
+
+    def state_dict(self) -> dict:
+        """Everything needed to continue exactly (tensors, numbers, nested dicts)."""
+
+    def load_state_dict(self, state: dict) -> None:
+        ...

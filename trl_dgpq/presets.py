@@ -1,0 +1,40 @@
+"""Named settings per (env, agent): overrides of the config dataclasses' defaults,
+and nothing else. Each env names its default preset; every (env, agent) pair that
+can run has an entry holding at least that name.
+
+Keys are setting names as on the command line (``noise_var``, or dotted paths).
+"""
+from __future__ import annotations
+
+DEFAULT_PRESET = {"square": "shaped"}
+
+# Why the square's presets differ: README "The square domain and its presets" (SPEC 3.1).
+PRESETS = {
+    ("square", "dgpq"): {
+        # DGPQConfig's and SquareConfig's defaults are the "shaped" settings: L_Q = 1 with
+        # the L1 metric (the true Lipschitz constant), V_max = R_max / (1 - gamma).
+        "shaped": {},
+        # The seed report's settings verbatim, Section 5 with its unit-square covering.
+        "report": {"agent": dict(lipschitz=9.0, v_max=400.0, sigma_tol2=None, eps1=None, eps=1.0, delta=0.96,
+                                 r_max=2.0, covering="unit-square")},
+        # GWH14's MDP: -1 per step, 0 at the goal, undiscounted.
+        "paper": {"env": dict(reward="paper"),
+                  "agent": dict(gamma=1.0, lipschitz=9.0, v_max=0.0, outputscale=0.5)},
+    },
+    ("square", "random"): {"shaped": {}, "paper": {"env": dict(reward="paper")}},
+}
+
+
+def preset_overrides(env: str, agent: str, name=None):
+    """(name, {"env": {...}, "agent": {...}}) of preset ``name`` (None: the env's default)."""
+    table = PRESETS.get((env, agent))
+    if table is None:
+        raise ValueError(f"no presets for agent {agent!r} on env {env!r}: add an entry to trl_dgpq/presets.py")
+    name = name or DEFAULT_PRESET[env]
+    if name not in table:
+        raise ValueError(f"unknown preset {name!r} for {agent} on {env}; choose from {sorted(table)}")
+    entry = table[name]
+    unknown = set(entry) - {"env", "agent"}
+    if unknown:
+        raise ValueError(f"preset {name!r}: sections must be 'env' and 'agent', got {sorted(unknown)}")
+    return name, {"env": dict(entry.get("env", {})), "agent": dict(entry.get("agent", {}))}
