@@ -2,12 +2,13 @@ import math
 
 import pytest
 import torch
+from tensordict import TensorDict
 
 from trl_dgpq.bounds import section5
 from trl_dgpq.config import with_overrides
 from trl_dgpq.dgpq import DGPQ, DGPQConfig, argmax_random_ties
 from trl_dgpq.qhat import LipschitzQ
-from trl_dgpq.rng import SeedStreams
+from trl_dgpq.rng import TIE_STREAM, SeedStreams
 
 D = torch.float64
 
@@ -55,11 +56,36 @@ def test_masked_insert_touches_only_selected_seeds():
 
 # ---------------------------------------------------------------- step 1
 def test_ties_are_uniform_from_the_seed_stream():
+    u = SeedStreams(range(4000), stream=7).uniform(4)
     q = torch.zeros(4000, 4, dtype=D)
-    counts = torch.bincount(argmax_random_ties(q, torch.rand(4000, 4, dtype=D)), minlength=4)
+    counts = torch.bincount(argmax_random_ties(q, u), minlength=4)
     assert (counts > 850).all() and (counts < 1150).all()
     q[:, 2] = 1.0
-    assert (argmax_random_ties(q, torch.rand(4000, 4, dtype=D)) == 2).all()
+    assert (argmax_random_ties(q, u) == 2).all()
+    q[:, 1] = 1.0 - 1e-2                                   # close, but not a tie
+    assert (argmax_random_ties(q, u) == 2).all()
+
+
+def test_act_breaks_ties_with_the_tie_stream_of_each_seed():
+    """Empty Q̂: every action ties, so the choice is argmax of the seed's tie-stream draws."""
+    seeds = [0, 5, 9]
+    ag = DGPQ(config(), seeds=seeds, state_dim=2, num_actions=4)
+    ref = SeedStreams(seeds, stream=TIE_STREAM)
+    obs = torch.zeros(3, 2, dtype=torch.float32)           # float32 observations are accepted
+    taken = []
+    for _ in range(40):
+        a = ag.select_action(obs)
+        assert torch.equal(a, ref.uniform(4).argmax(-1))
+        taken.append(a)
+    assert len(torch.stack(taken).unique()) == 4           # not list order (always 0)
+
+
+def test_float32_observations_after_a_qhat_insert():
+    ag = agent_1d()
+    step(ag, 0.5, 0, 1.0, 0.6)                              # overwrites Q̂ (see below)
+    assert ag.qhat.size().item() == 1
+    td = TensorDict({"observation": torch.tensor([[0.5]], dtype=torch.float32)}, batch_size=[1])
+    assert ag.act(td).item() == 1                           # Q̂_0(0.5) < V_max = Q̂_1(0.5)
 
 
 # ---------------------------------------------------------------- steps 3-6
@@ -82,6 +108,11 @@ def test_q_target_bootstraps_on_qhat_except_at_terminal():
     ag = agent_1d()
     assert ag.q_target(t([1.0]), t([[0.2]]), torch.tensor([False])).item() == pytest.approx(1.0 + 0.5 * 10.0)
     assert ag.q_target(t([1.0]), t([[0.2]]), torch.tensor([True])).item() == pytest.approx(1.0)
+    # With Q̂_0(0.2) = 3 + |0.2 - 0.2| and Q̂_1 = V_max = 10 the bootstrap is the max, 10, not 3.
+    ag.qhat.insert(t([[0.2]]), torch.tensor([0]), t([3.0]), torch.tensor([True]))
+    assert ag.q_target(t([1.0]), t([[0.2]]), torch.tensor([False])).item() == pytest.approx(1.0 + 0.5 * 10.0)
+    ag.qhat.insert(t([[0.2]]), torch.tensor([1]), t([4.0]), torch.tensor([True]))
+    assert ag.q_target(t([1.0]), t([[0.2]]), torch.tensor([False])).item() == pytest.approx(1.0 + 0.5 * 4.0)
 
 
 def test_one_confident_sample_overwrites_qhat_and_resets_every_gp():
@@ -99,6 +130,18 @@ def test_one_confident_sample_overwrites_qhat_and_resets_every_gp():
     assert ag.qhat(t([[0.5]]))[0, 1].item() == 10.0
     assert ag.gp.size.tolist() == [[0, 0]]     # every action's GP emptied
     assert ag.qhat_updates.item() == 1
+
+
+def test_an_overwrite_empties_only_that_seeds_gps():
+    ag = agent_1d(seeds=(0, 1))
+    x = t([[0.4], [0.4]])
+    ag.learn(x, torch.tensor([1, 1]), t([5.0, 5.0]), t([[0.5], [0.5]]), torch.tensor([False, False]))
+    assert ag.gp.size.tolist() == [[0, 1], [0, 1]]          # q = Q̂: both learn, neither overwrites
+    out = ag.learn(t([[0.5], [0.9]]), torch.tensor([0, 0]), t([1.0, 5.0]), t([[0.6], [0.9]]),
+                   torch.tensor([False, False]))
+    assert out["update"].tolist() == [True, False]         # seed 0: q = 6 < 10; seed 1: q = 10
+    assert ag.gp.size.tolist() == [[0, 0], [1, 1]]          # seed 1 keeps both points
+    assert ag.qhat.size().tolist() == [1, 0]
 
 
 def test_sigma_tol2_delays_the_update_until_the_gp_is_confident():
@@ -130,8 +173,11 @@ def test_inactive_seeds_learn_nothing():
 # ---------------------------------------------------------------- Section 5
 def test_section5_reproduces_the_report_values():
     eps1, tol = section5(eps=1.0, delta=0.96, gamma=0.01, r_max=2.0, lipschitz=9.0, num_actions=4, noise_var=0.1)
-    assert eps1 == pytest.approx(0.33)
-    assert tol == pytest.approx(3.05e-4, rel=0.01)
+    assert eps1 == pytest.approx(0.33, rel=1e-12)
+    # By hand: r = 0.99/27, N_S = ceil(1/(pi r^2)) = 237, kappa = 4*237*(6/0.99^2 + 1) = 6751.49,
+    # sigma_tol2 = 0.2 * 0.99^4 / (36 ln(24*237*6752.49/0.96)). Dropping /delta gives 3.0558e-4,
+    # dropping kappa's +1 gives 3.0753e-4.
+    assert tol == pytest.approx(3.0487093e-4, rel=1e-6)
     with pytest.raises(ValueError, match="gamma"):
         section5(1.0, 0.96, 1.0, 2.0, 9.0, 4, 0.1)
     cfg = config(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0, lipschitz=9.0,
@@ -145,3 +191,16 @@ def test_section5_reproduces_the_report_values():
 def test_config_rejects_bad_values(bad, match):
     with pytest.raises(ValueError, match=match):
         config(**bad).resolve(4)
+
+
+def test_section5_covering_from_the_env_state_box():
+    """covering "env": the unit box under L1 needs ceil(1/r)^2 = 28^2 = 784 balls of radius
+    r = 0.99/27 (a cube of side r fits in each), so sigma_tol2 = 2.6821e-4 (by hand)."""
+    from trl_dgpq.bounds import box_covering
+    assert box_covering([0, 0], [1, 1], "l1")(0.99 / 27) == 784
+    assert box_covering([0, 0], [1, 1], "linf")(0.25) == 4                  # cubes of side 0.5
+    assert box_covering([0, 0, 0], [1, 2, 1], "l2")(math.sqrt(3) / 2) == 2  # cubes of side 1
+    cfg = config(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0, lipschitz=9.0)
+    assert cfg.resolve(4, state_box=([0.0, 0.0], [1.0, 1.0])).sigma_tol2 == pytest.approx(2.6821087e-4, rel=1e-6)
+    with pytest.raises(ValueError, match="state box"):
+        config(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0).resolve(4)

@@ -75,6 +75,14 @@ def manifold_config(seeds, **kw):
                           kernel_train_every=25, kernel_min_points=5, kernel_train_steps=10, max_steps=100, **kw)
 
 
+def training_config(seeds, **kw):
+    """sigma_tol2 = 0.05 needs a few samples at a point, so GPs fill up (the kernel trains)
+    and then Q̂ is overwritten (every GP of the seed is emptied): both paths in 2 episodes."""
+    return resolve_config(preset="shaped", seeds=seeds, episodes=2, gp="exact", kernel="manifold", sigma_tol2=0.05,
+                          kernel_train_every=5, kernel_min_points=5, kernel_train_steps=5, max_steps=60, **kw)
+
+
+@pytest.mark.slow
 def test_no_nan_over_2000_dgpq_steps():
     env, agent = build(manifold_config([0, 1]))
     df = OnlineCollector(env, agent, 10 ** 9, max_total_steps=2000, progress=False).run()
@@ -86,10 +94,11 @@ def test_no_nan_over_2000_dgpq_steps():
     assert len(df) >= 2 and df["return"].notna().all()
 
 
-def test_manifold_seeds_stay_independent():
+def test_manifold_seeds_stay_independent_through_training_and_overwrites():
     drop = lambda df: df.drop(columns=list(TIMING_COLUMNS)).reset_index(drop=True)  # noqa: E731
-    batch = drop(run_experiment(manifold_config([0, 1, 2]), progress=False))
-    alone = drop(run_experiment(manifold_config([1]), progress=False))
+    batch = drop(run_experiment(training_config([0, 1, 2]), progress=False))
+    alone = drop(run_experiment(training_config([1]), progress=False))
+    assert (batch.kernel_fits > 0).all() and (batch.groupby("seed").qhat_updates.max() > 0).all()
     pd.testing.assert_frame_equal(alone, batch[batch.seed == 1].reset_index(drop=True),
                                   check_exact=False, rtol=0, atol=1e-8)
 
@@ -107,3 +116,62 @@ def test_fit_trouble_keeps_last_good_parameters_and_logs(caplog):
     assert torch.isfinite(m).all() and torch.isfinite(v).all()
     assert out["frozen"].all() and "kept their last good parameters" in caplog.text
     torch.testing.assert_close(out["nll_after"], out["nll_before"])  # back at the last good point
+
+
+def test_fit_with_a_shared_kernel_refits_every_gp():
+    """A shared RBF kernel trained on GP 0 changes GP 1 too: its posterior must be the one
+    sklearn gives with the new hyperparameters, not the stale one."""
+    x, y = step_data(30)
+    gp = ExactGP(RBFKernel(1.0, 1.0), 0.1, 1, batch_shape=(2,))
+    gp.set_data(torch.stack((x, x)), torch.stack((y, -y)))
+    fit(gp, torch.tensor([True, False]), steps=30, lr=0.05)
+    ls, os_, noise = gp.kernel.lengthscale.item(), gp.kernel.outputscale.item(), gp.noise[1].item()
+    assert abs(ls - 1.0) > 0.05  # the kernel did change
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel
+    xq = torch.linspace(-1, 1, 7, dtype=D)[:, None]
+    sk = GaussianProcessRegressor(ConstantKernel(os_, "fixed") * RBF(ls, "fixed"), alpha=noise,
+                                  optimizer=None).fit(x.numpy(), -y.numpy())
+    m_sk, s_sk = sk.predict(xq.numpy(), return_std=True)
+    m, v = gp.predict(xq.expand(2, 7, 1))
+    torch.testing.assert_close(m[1], torch.as_tensor(m_sk), atol=1e-8, rtol=0)
+    torch.testing.assert_close(v[1], torch.as_tensor(s_sk ** 2), atol=1e-8, rtol=0)
+
+
+def test_a_frozen_gp_stays_at_its_last_good_parameters(monkeypatch):
+    """GP 0's loss is non-finite once, at the 6th evaluation: it is frozen at the parameters
+    of the 5th and must not move again (Adam's momentum would keep moving it, and its loss
+    is finite again by the end), while GP 1 trains on."""
+    import trl_dgpq.gp.train as train
+    x, y = step_data(40)
+    gp = ExactGP(ManifoldKernel(2, 1, hidden=(10,), lengthscale=0.3), 0.1, 1, batch_shape=(2,))
+    gp.set_data(torch.stack((x, x)), torch.stack((y, -y)))
+    seen, real = [], train._nll
+
+    def nll(gp_, rows, raw_noise, *a):
+        seen.append([p.detach()[0].clone() for p in gp_.kernel.parameters()])
+        out, ok = real(gp_, rows, raw_noise, *a)
+        if len(seen) == 6:  # a passing trouble of GP 0
+            out = torch.where(torch.arange(2) == 0, torch.nan, out)
+        return out, ok
+    monkeypatch.setattr(train, "_nll", nll)
+    start1 = [p.detach()[1].clone() for p in gp.kernel.parameters()]
+    out = fit(gp, steps=20, lr=0.05)
+    assert out["frozen"].tolist() == [True, False]
+    for p, good in zip(gp.kernel.parameters(), seen[4]):   # the parameters of the last good evaluation
+        torch.testing.assert_close(p.detach()[0], good, atol=0, rtol=0)
+    assert any((p.detach()[1] - s).abs().max() > 1e-3 for p, s in zip(gp.kernel.parameters(), start1))
+
+
+def test_train_creates_tensors_on_the_gps_device():
+    """Every tensor factory call in gp/train.py names a device (or copies one with *_like),
+    so fitting works for GPs on an accelerator."""
+    import ast
+    import inspect
+    import trl_dgpq.gp.train as train
+    factories = {"zeros", "ones", "arange", "eye", "full", "empty", "tensor", "rand", "randn", "linspace"}
+    bad = [node.lineno for node in ast.walk(ast.parse(inspect.getsource(train)))
+           if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in factories
+           and isinstance(node.func.value, ast.Name) and node.func.value.id == "torch"
+           and not any(kw.arg == "device" for kw in node.keywords)]
+    assert not bad, f"tensors created without device= on lines {bad}"
