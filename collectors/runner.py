@@ -67,6 +67,13 @@ def atomic_write(path: Path, write) -> None:
             tmp.unlink()
 
 
+def read_csv_exact(path) -> pd.DataFrame:
+    """read_csv that gives back exactly the floats written (pandas >= 3 does by default;
+    older pandas needs the round-trip parser)."""
+    exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+    return pd.read_csv(path, **exact)
+
+
 def provenance() -> dict:
     """Versions and the git commit of this code, for config.json."""
     import numpy
@@ -190,7 +197,7 @@ class RunFolder:
         os.truncate(path, size)
 
     def episodes(self) -> pd.DataFrame:
-        return pd.read_csv(self.file(EPISODES), float_precision="round_trip")
+        return read_csv_exact(self.file(EPISODES))
 
     def finalize_csv(self) -> pd.DataFrame:
         """Rewrite episodes.csv sorted by (seed, episode), atomically."""

@@ -72,6 +72,14 @@ def given_settings(args, parser) -> dict:
 
 
 def main(argv=None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # Ctrl-C before the run started (a started run checkpoints instead)
+        print("interrupted before the run started", file=sys.stderr)
+        return 130
+
+
+def _main(argv=None) -> int:
     parser = make_parser()
     args = parser.parse_args(argv)
     settings = given_settings(args, parser)

@@ -1,7 +1,3 @@
-import importlib.util
-import subprocess
-import sys
-from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -12,9 +8,6 @@ from trl_dgpq.collectors.experiment import TIMING_COLUMNS, parse_seeds, resolve_
 from trl_dgpq.collectors.online import OnlineCollector
 from trl_dgpq.envs import SquareEnv
 from trl_dgpq.rng import SeedStreams, splitmix64, splitmix64_reference
-
-ROOT = Path(__file__).resolve().parent.parent
-
 
 def test_specs_and_dynamics():
     env = SquareEnv(seeds=[0, 1, 2])
@@ -195,21 +188,3 @@ def test_parse_seeds():
     for bad in ("0", "5-2", "1,1", "x", "-3"):
         with pytest.raises(ValueError):
             parse_seeds(bad)
-
-
-def test_train_cli(tmp_path, capsys):
-    out = tmp_path / "run"
-    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "--seeds", "2", "--episodes", "2",
-           "--out", str(out), "--no-progress"]
-    subprocess.run(cmd, check=True, capture_output=True, text=True)
-    df = pd.read_csv(out / "episodes.csv")
-    assert list(df.seed) == [0, 0, 1, 1] and (out / "config.json").is_file()
-    # Bad values: a clean argparse error (exit 2), never an exception escaping main().
-    spec = importlib.util.spec_from_file_location("train", ROOT / "scripts" / "train.py")
-    train = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(train)
-    for bad, msg in ((["--noise-var", "-1"], "noise_var"), (["--preset", "nope"], "preset"),
-                     (["--gamma", "2"], "gamma"), (["--seeds", "5-2"], "seeds"), (["--budget", "0"], "budget")):
-        with pytest.raises(SystemExit) as exc:
-            train.main(bad + ["--out", str(tmp_path / "x")])
-        assert exc.value.code == 2 and msg in capsys.readouterr().err

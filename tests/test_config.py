@@ -1,0 +1,132 @@
+"""One source of truth: dataclass defaults -> presets (overrides only) -> flags / --set."""
+import importlib.util
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, Tuple
+
+import pytest
+
+from trl_dgpq.agents import AGENTS
+from trl_dgpq.bounds import box_covering, section5
+from trl_dgpq.collectors.experiment import RunConfig, cli_leaves, resolve_config
+from trl_dgpq.config import find_leaf, from_dict, leaves, nested, setting, to_dict, with_overrides
+from trl_dgpq.dgpq import DGPQConfig
+from trl_dgpq.envs import ENVS
+from trl_dgpq.presets import DEFAULT_PRESET, PRESETS
+
+ROOT = Path(__file__).resolve().parent.parent
+spec = importlib.util.spec_from_file_location("train", ROOT / "scripts" / "train.py")
+train = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(train)
+
+
+def cli_config(*argv):
+    parser = train.make_parser()
+    args = parser.parse_args(list(argv))
+    return resolve_config(train.given_settings(args, parser))
+
+
+def test_no_hand_written_hyperparameter_flags():
+    """Every flag of train.py is a generated setting or one of the few process flags."""
+    parser = train.make_parser()
+    dests = {a.dest for a in parser._actions} - {"help"}
+    generated = set(cli_leaves())
+    assert dests - generated == set(train.PROCESS_FLAGS)
+    every_leaf = {leaf.key for cls in [RunConfig] + [e.Config for e in ENVS.values()] + [a.Config for a in AGENTS.values()]
+                  for leaf in leaves(cls)}
+    assert every_leaf <= dests
+    assert all(leaf.help for leaf in cli_leaves().values())
+
+
+@pytest.mark.parametrize("argv,path,value", [
+    (["--gp", "exact"], ("agent", "gp", "backend"), "exact"), (["--budget", "20"], ("agent", "gp", "budget"), 20),
+    (["--novelty-tol", "0.01"], ("agent", "gp", "novelty_tol"), 0.01), (["--gamma", "0.5"], ("agent", "gamma"), 0.5),
+    (["--lipschitz", "2"], ("agent", "lipschitz"), 2.0), (["--v-max", "3"], ("agent", "v_max"), 3.0),
+    (["--sigma-tol2", "0.2"], ("agent", "sigma_tol2"), 0.2), (["--eps1", "0.01"], ("agent", "eps1"), 0.01),
+    (["--noise-var", "0.2"], ("agent", "gp", "noise_var"), 0.2), (["--lengthscale", "0.1"], ("agent", "gp", "lengthscale"), 0.1),
+    (["--outputscale", "2"], ("agent", "gp", "outputscale"), 2.0), (["--metric", "l2"], ("agent", "metric"), "l2"),
+    (["--gp", "exact", "--kernel", "manifold"], ("agent", "gp", "kernel"), "manifold"),
+    (["--kernel-hidden", "16,16"], ("agent", "gp", "kernel_hidden"), [16, 16]),
+    (["--no-kernel-skip"], ("agent", "gp", "kernel_skip"), False),
+    (["--kernel-train-every", "7"], ("agent", "gp", "kernel_train_every"), 7),
+    (["--kernel-lr", "0.1"], ("agent", "gp", "kernel_lr"), 0.1), (["--max-steps", "50"], ("env", "max_steps"), 50),
+    (["--preset", "paper"], ("env", "reward"), "paper"), (["--seeds", "3-5"], ("run", "seeds"), [3, 4, 5]),
+    (["--episodes", "7"], ("run", "episodes"), 7), (["--checkpoint-every", "3"], ("run", "checkpoint_every"), 3),
+])
+def test_todays_flags_keep_working(argv, path, value):
+    node = cli_config(*argv)
+    for p in path:
+        node = node[p]
+    assert node == value
+
+
+def test_flags_and_set_are_the_same_setting():
+    a = cli_config("--noise-var", "0.2", "--max-steps", "70")
+    assert a == cli_config("--set", "noise_var=0.2", "--set", "max_steps=70")
+    assert a == cli_config("--set", "gp.noise_var=0.2", "--set", "env.max_steps=70")
+    assert a == cli_config("--set", "agent.gp.noise_var=0.2", "--set", "env.max_steps=70")
+
+
+def test_defaults_live_in_the_dataclasses():
+    cfg = cli_config()
+    assert cfg == resolve_config()
+    assert cfg["run"] == {**to_dict(RunConfig()), "preset": DEFAULT_PRESET["square"]}
+    assert cfg["env"] == to_dict(ENVS["square"].Config())
+    assert cfg["agent"] == to_dict(DGPQConfig())   # "shaped" overrides nothing
+
+
+def test_presets_hold_only_overrides_of_known_settings():
+    for (env, agent), table in PRESETS.items():
+        assert DEFAULT_PRESET[env] in table, (env, agent)
+        for name, preset in table.items():
+            for section, owner in (("env", ENVS[env].Config), ("agent", AGENTS[agent].Config)):
+                for key, value in preset.get(section, {}).items():
+                    leaf = find_leaf(owner, key)
+                    assert leaf is not None, (env, agent, name, key)
+                    assert value != leaf.default, f"{env}/{agent}/{name}: {key}={value!r} is the default"
+            resolve_config(env=env, agent=agent, preset=name, seeds=[0])
+
+
+def test_section5_is_derived_when_eps_or_delta_is_given():
+    """eps = 1, delta = 0.9, R_max = 2 on "shaped" (L_Q = 1, gamma = 0.01, 4 actions): eps1 =
+    0.33; the unit box under L1 at r = 0.33 needs ceil(1/0.33)^2 = 16 balls."""
+    agent = cli_config("--eps", "1", "--delta", "0.9", "--r-max", "2")["agent"]
+    assert agent["eps1"] == pytest.approx(0.33)
+    assert box_covering([0, 0], [1, 1], "l1")(0.33) == 16
+    expect = section5(1.0, 0.9, 0.01, 2.0, 1.0, 4, 0.1, lambda r: 16)[1]
+    assert agent["sigma_tol2"] == pytest.approx(expect, rel=1e-12)
+    assert cli_config("--eps", "1", "--delta", "0.9", "--r-max", "2", "--eps1", "0.5")["agent"]["eps1"] == 0.5
+
+
+@dataclass
+class Inner:
+    """inner"""
+    width: Tuple[int, ...] = setting((1, 2), "widths")
+    on: bool = setting(True, "switch")
+
+
+@dataclass
+class Outer:
+    """outer"""
+    rate: float = setting(0.5, "a rate")
+    tol: Optional[float] = setting(None, "a tolerance")
+    mode: str = setting("a", "a mode", choices=("a", "b"))
+    count: int = setting(3, "a count")
+    inner: Inner = nested(Inner)
+
+
+def test_values_are_parsed_against_the_field_types():
+    cfg = with_overrides(Outer(), {"rate": "1e-3", "tol": "none", "mode": "b", "count": "4", "width": "3, 4",
+                                   "inner.on": "no"})
+    assert (cfg.rate, cfg.tol, cfg.mode, cfg.count, cfg.inner.width, cfg.inner.on) == (1e-3, None, "b", 4, (3, 4), False)
+    assert from_dict(Outer, to_dict(cfg)) == cfg                          # JSON round trip
+    assert with_overrides(Outer(), {"rate": "inf"}).rate == math.inf
+    for key, value, words in (("rate", "fast", "rate must be a number"), ("count", "1.5", "count must be an integer"),
+                              ("count", True, "count must be an integer"), ("mode", "c", "mode must be one of"),
+                              ("inner.on", "maybe", "on must be true or false"), ("width", "1,x", "width must be"),
+                              ("nope", 1, "unknown setting 'nope'")):
+        with pytest.raises(ValueError, match=words):
+            with_overrides(Outer(), {key: value})
+    with pytest.raises(ValueError, match="unknown Outer settings"):
+        from_dict(Outer, {"rate": 1.0, "speed": 2})

@@ -1,0 +1,156 @@
+"""scripts/train.py and its run folder: files, status, refusals, one-line errors, signals."""
+import importlib.util
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from trl_dgpq.collectors.experiment import TIMING_COLUMNS
+from trl_dgpq.collectors.runner import RunFolder, read_csv_exact
+
+ROOT = Path(__file__).resolve().parent.parent
+TRAIN = ROOT / "scripts" / "train.py"
+
+
+def load_script(name):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+train = load_script("train")
+
+
+def csv(path):
+    return read_csv_exact(Path(path) / "episodes.csv").drop(columns=list(TIMING_COLUMNS))
+
+
+def run(*argv):
+    return train.main([*map(str, argv), "--no-progress"])
+
+
+def test_run_folder_files_status_and_provenance(tmp_path):
+    out = tmp_path / "run"
+    assert run("--seeds", 2, "--episodes", 3, "--out", out) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["checkpoint.pt", "config.json", "episodes.csv", "status.json"]
+    df = pd.read_csv(out / "episodes.csv")
+    assert list(df.seed) == [0, 0, 0, 1, 1, 1] and list(df.episode) == [1, 2, 3] * 2
+    cfg = json.loads((out / "config.json").read_text())
+    assert set(cfg) == {"run", "env", "agent", "versions", "git"}
+    assert {"torch", "torchrl", "tensordict", "numpy"} <= set(cfg["versions"])
+    assert cfg["run"]["preset"] == "shaped" and cfg["run"]["seeds"] == [0, 1]
+    assert set(cfg["git"]) == {"commit", "dirty"} and len(cfg["git"]["commit"]) == 40
+    status = json.loads((out / "status.json").read_text())
+    assert status["status"] == "finished" and status["episodes_done"] == 6
+
+
+def test_config_json_repeats_a_run_and_takes_overrides(tmp_path):
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    run("--seeds", "1,4", "--episodes", 3, "--gp", "exact", "--max-steps", 80, "--out", a)
+    run("--config", a / "config.json", "--out", b)
+    pd.testing.assert_frame_equal(csv(a), csv(b))
+    assert json.loads((b / "config.json").read_text())["agent"] == json.loads((a / "config.json").read_text())["agent"]
+    run("--config", a / "config.json", "--episodes", 2, "--out", c)
+    assert csv(c).episode.max() == 2 and json.loads((c / "config.json").read_text())["env"]["max_steps"] == 80
+
+
+def test_out_holding_a_run_is_refused_unless_overwrite(tmp_path, capsys):
+    out = tmp_path / "run"
+    run("--seeds", 1, "--episodes", 1, "--out", out)
+    before = (out / "episodes.csv").read_bytes()
+    with pytest.raises(SystemExit) as exc:
+        run("--seeds", 1, "--episodes", 2, "--out", out)
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and "--resume" in err and "--overwrite" in err and len(err.splitlines()) == 1
+    assert (out / "episodes.csv").read_bytes() == before          # nothing touched
+    assert run("--seeds", 1, "--episodes", 2, "--out", out, "--overwrite") == 0
+    assert len(pd.read_csv(out / "episodes.csv")) == 2
+    other = tmp_path / "papers"
+    other.mkdir()
+    (other / "draft.tex").write_text("x")
+    with pytest.raises(SystemExit):
+        run("--episodes", 1, "--out", other, "--overwrite")       # not a run: never overwritten
+    assert (other / "draft.tex").exists()
+
+
+def test_default_run_folders_are_unique(tmp_path):
+    made = {RunFolder.create(None, "square-dgpq-shaped", root=str(tmp_path)).path for _ in range(3)}
+    assert len(made) == 3 and all(p.is_dir() for p in made)
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["--bogus", "1"], "unrecognized"),
+    (["--set", "bogus=1"], "unknown setting 'bogus'"),
+    (["--set", "gamma"], "KEY=VALUE"),
+    (["--set", "gamma=abc"], "gamma must be a number"),
+    (["--episodes", "x"], "episodes must be an integer"),
+    (["--episodes", "0"], "episodes must be >= 1"),
+    (["--gamma", "2"], "gamma must be in [0, 1]"),
+    (["--noise-var", "-1"], "noise_var"),
+    (["--budget", "0"], "budget"),
+    (["--kernel", "manifold"], "use --gp exact"),
+    (["--kernel-hidden", "10,x"], "kernel_hidden"),
+    (["--preset", "nope"], "unknown preset 'nope'"),
+    (["--agent", "nope"], "agent must be one of"),
+    (["--env", "nope"], "env must be one of"),
+    (["--seeds", "5-2"], "seeds"),
+    (["--max-steps", "0"], "max_steps"),
+    (["--agent", "random", "--budget", "5"], "unknown setting 'budget'"),
+    (["--budget", "100000000"], "GiB"),
+    (["--resume", "/nonexistent/run"], "no run to resume"),
+    (["--resume", "/tmp", "--gamma", "0.5"], "--resume continues a run"),
+    (["--config", "/nonexistent.json"], "cannot read --config"),
+    (["--out", "/etc/hostname/run"], "run folder"),
+])
+def test_user_errors_end_in_one_line_and_exit_2(argv, words, capsys, tmp_path):
+    t0 = time.perf_counter()
+    argv = argv if "--out" in argv or "--resume" in argv else argv + ["--out", str(tmp_path / "x")]
+    with pytest.raises(SystemExit) as exc:
+        run(*argv)
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and len(err.splitlines()) == 1 and words in err, err
+    assert not (tmp_path / "x").exists()                        # refused before any work
+    assert time.perf_counter() - t0 < 5
+
+
+def test_resume_refuses_a_finished_run(tmp_path, capsys):
+    run("--seeds", 1, "--episodes", 1, "--out", tmp_path / "r")
+    with pytest.raises(SystemExit) as exc:
+        train.main(["--resume", str(tmp_path / "r")])
+    assert exc.value.code == 2 and "finished" in capsys.readouterr().err
+
+
+def test_sigint_on_a_real_run_checkpoints_and_resumes_to_the_same_csv(tmp_path):
+    """The whole path a user meets: Ctrl-C in the middle of train.py -> exit 130, one line
+    naming --resume, every finished episode on disk; --resume -> the uninterrupted CSV."""
+    ref, out = tmp_path / "ref", tmp_path / "run"
+    settings = ["--seeds", "3", "--episodes", "40", "--checkpoint-every", "5"]
+    proc = subprocess.Popen([sys.executable, str(TRAIN), *settings, "--out", str(out), "--no-progress"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    while not ((out / "episodes.csv").exists() and len((out / "episodes.csv").read_text().splitlines()) > 10):
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    lines = err.strip().splitlines()
+    assert proc.returncode == 130 and len(lines) == 1 and f"--resume {out}" in lines[0], err
+    status = json.loads((out / "status.json").read_text())
+    assert status["status"] == "interrupted" and status["reason"] == "SIGINT"
+    assert len(pd.read_csv(out / "episodes.csv")) == status["episodes_done"] < 120
+    assert train.main(["--resume", str(out), "--no-progress"]) == 0
+    run(*settings, "--out", ref)
+    pd.testing.assert_frame_equal(csv(ref), csv(out))
+
+
+@pytest.mark.slow
+def test_crash_check_script(tmp_path):
+    """SIGINT, SIGTERM and SIGKILL at random points of real runs (scripts/crash_check.py)."""
+    crash = load_script("crash_check")
+    assert crash.main(["--trials", "3", "--seeds", "3", "--episodes", "40", "--work", str(tmp_path),
+                       "--json", str(tmp_path / "cc.json")]) == 0

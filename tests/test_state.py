@@ -1,0 +1,189 @@
+"""Everything with state saves and restores exactly: a restored copy, continued the same
+way, gives bitwise the same results as the original. And an interrupted run, resumed,
+writes the same episodes.csv as an uninterrupted one."""
+import io
+import os
+import signal
+
+import pandas as pd
+import pytest
+import torch
+
+from trl_dgpq.agents import AGENTS
+from trl_dgpq.collectors import runner
+from trl_dgpq.collectors.experiment import TIMING_COLUMNS, build, resolve_config
+from trl_dgpq.collectors.online import OnlineCollector
+from trl_dgpq.envs import SquareEnv
+from trl_dgpq.gp import ExactGP, ManifoldKernel, RBFKernel, SparseOnlineGP, fit
+from trl_dgpq.qhat import LipschitzQ
+from trl_dgpq.rng import SeedStreams
+
+D = torch.float64
+
+
+def through_disk(state):
+    """What a checkpoint does to a state: torch.save, then torch.load(weights_only=True)."""
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    buf.seek(0)
+    return torch.load(buf, weights_only=True)
+
+
+def test_seed_streams_continue_where_they_were():
+    a = SeedStreams([1, 4], stream=2)
+    for _ in range(300):  # past a buffer refill
+        a.uniform(3)
+    b = SeedStreams([1, 4], stream=2)
+    b.load_state_dict(through_disk(a.state_dict()))
+    for _ in range(300):
+        assert torch.equal(a.uniform(3), b.uniform(3))
+    with pytest.raises(ValueError, match="other seeds"):
+        SeedStreams([1, 5], stream=2).load_state_dict(a.state_dict())
+
+
+def test_qhat_round_trip_with_grown_storage():
+    g = torch.Generator().manual_seed(0)
+    q = LipschitzQ(2, 3, 2, lipschitz=1.0, v_max=5.0, capacity=2)
+    for _ in range(20):
+        q.insert(torch.rand(2, 2, generator=g, dtype=D), torch.randint(3, (2,), generator=g),
+                 torch.rand(2, generator=g, dtype=D), torch.tensor([True, True]))
+    assert q.capacity > 2
+    r = LipschitzQ(2, 3, 2, lipschitz=1.0, v_max=5.0, capacity=2)
+    r.load_state_dict(through_disk(q.state_dict()))
+    assert (r.width, r.version, r.capacity) == (q.width, q.version, q.capacity)
+    x = torch.rand(2, 2, generator=g, dtype=D)
+    assert torch.equal(q(x), r(x)) and torch.equal(q.size(), r.size())
+    for t in (q, r):
+        t.insert(x, torch.tensor([0, 2]), torch.tensor([0.1, 0.2], dtype=D), torch.tensor([True, False]))
+    assert torch.equal(q.mu, r.mu) and torch.equal(q.s, r.s)
+
+
+def gp_pair(kind):
+    if kind == "exact":
+        make = lambda: ExactGP(RBFKernel(0.3, 1.0), 0.1, 2, batch_shape=(2, 3), capacity=2)  # noqa: E731
+    elif kind == "sparse":
+        make = lambda: SparseOnlineGP(RBFKernel(0.3, 1.0), 0.1, 2, batch_shape=(2, 3), budget=5)  # noqa: E731
+    else:
+        make = lambda: ExactGP(ManifoldKernel(6, 2, lengthscale=0.3,  # noqa: E731
+                                              uniform=lambda n, c: torch.rand(n, c, generator=torch.Generator().manual_seed(len(kind)), dtype=D)),
+                               0.1, 2, batch_shape=(2, 3), capacity=2)
+    return make
+
+
+@pytest.mark.parametrize("kind", ["exact", "sparse", "manifold"])
+def test_gp_round_trip_into_a_fresh_instance(kind):
+    make = gp_pair(kind)
+    g = torch.Generator().manual_seed(1)
+    data = lambda: (torch.rand(2, 3, 2, generator=g, dtype=D), torch.rand(2, 3, generator=g, dtype=D))  # noqa: E731
+    a = make()
+    for _ in range(12):
+        a.add(*data(), mask=torch.rand(2, 3, generator=g) < 0.7)
+    if kind == "manifold":
+        fit(a, steps=5, lr=0.05, min_points=3)
+    b = make()
+    b.kernel.raw_lengthscale.data += 1.0  # a fresh instance differs: the load must set everything
+    b.load_state_dict(through_disk(a.state_dict()))
+    xq = torch.rand(2, 3, 4, 2, generator=g, dtype=D)
+    for u, v in zip(a.predict(xq), b.predict(xq)):
+        assert torch.equal(u, v)
+    for _ in range(5):
+        x, y = data()
+        for gp in (a, b):
+            gp.add(x, y)
+    for u, v in zip(a.predict(xq), b.predict(xq)):
+        assert torch.equal(u, v)
+
+
+def test_env_round_trip():
+    a = SquareEnv(seeds=[0, 3])
+    td = a.reset()
+    for i in range(7):
+        td["action"] = torch.tensor([i % 4, 0])
+        td = a.step_and_maybe_reset(td)[1]
+    b = SquareEnv(seeds=[0, 3])
+    b.reset()
+    b.load_state_dict(through_disk(a.state_dict()))
+    for i in range(30):
+        act = torch.tensor([2, i % 4])
+        ta, tb = a.step(td.clone().set("action", act)), b.step(td.clone().set("action", act))
+        assert torch.equal(ta["next", "observation"], tb["next", "observation"])
+        assert torch.equal(ta["next", "done"], tb["next", "done"])
+        td = a.step_mdp(ta)
+        b.step_mdp(tb)
+
+
+AGENT_CASES = {
+    "dgpq-sparse": dict(agent="dgpq", gp="sparse", budget=8),
+    "dgpq-exact": dict(agent="dgpq", gp="exact", capacity=2),
+    "dgpq-manifold": dict(agent="dgpq", gp="exact", kernel="manifold", sigma_tol2=0.05, kernel_train_every=5,
+                          kernel_min_points=5, kernel_train_steps=5, max_steps=60),
+    "random": dict(agent="random"),
+}
+
+
+def test_every_agent_has_a_resume_case():
+    assert {c["agent"] for c in AGENT_CASES.values()} == set(AGENTS)
+
+
+@pytest.mark.parametrize("case", sorted(AGENT_CASES))
+def test_agent_round_trip_mid_run(case):
+    """Run 100 steps, save env + agent + collector, load into fresh objects, run on:
+    the rows equal those of the original continuing."""
+    config = resolve_config(seeds=[0, 2], episodes=8, **AGENT_CASES[case])
+
+    def collector():
+        env, agent = build(config)
+        return OnlineCollector(env, agent, 8, progress=False)
+    a = collector()
+    a.max_total_steps = 100
+    a.run()
+    state = through_disk(dict(env=a.env.state_dict(), agent=a.agent.state_dict(), collector=a.state_dict()))
+    b = collector()
+    b.env.load_state_dict(state["env"])
+    b.agent.load_state_dict(state["agent"])
+    b.load_state_dict(state["collector"])
+    a.max_total_steps = b.max_total_steps = None
+    rest_a, rest_b = a.run(), b.run()
+    assert len(rest_a) > 0
+    pd.testing.assert_frame_equal(rest_a.drop(columns=list(TIMING_COLUMNS)), rest_b.drop(columns=list(TIMING_COLUMNS)))
+
+
+def episodes(folder):
+    return runner.read_csv_exact(folder.file("episodes.csv")).drop(columns=list(TIMING_COLUMNS))
+
+
+@pytest.mark.parametrize("stop", ["signal", "crash"])
+@pytest.mark.parametrize("case", sorted(AGENT_CASES))
+def test_interrupted_run_resumes_to_the_same_csv(tmp_path, monkeypatch, case, stop):
+    """"signal": SIGINT after the 5th batch of rows (checkpoint at the stop); "crash": an
+    error after the 5th batch (the last checkpoint is older, rows past it are on disk and
+    must be replaced, not duplicated)."""
+    config = resolve_config(seeds=[0, 1, 2], episodes=5, checkpoint_every=1, **AGENT_CASES[case])
+    whole = runner.RunFolder.create(str(tmp_path / "whole"), "x")
+    runner.start(config, whole, progress=False)
+
+    part = runner.RunFolder.create(str(tmp_path / "part"), "x")
+    calls, append = [0], runner.RunFolder.append_rows
+
+    def append_then_stop(self, rows):
+        size = append(self, rows)
+        calls[0] += 1
+        if calls[0] == 5:
+            if stop == "signal":
+                os.kill(os.getpid(), signal.SIGINT)
+            else:
+                raise RuntimeError("simulated crash")
+        return size
+    monkeypatch.setattr(runner.RunFolder, "append_rows", append_then_stop)
+    with pytest.raises(runner.Interrupted if stop == "signal" else RuntimeError):
+        runner.start(config, part, progress=False)
+    status = part.status()
+    assert status["status"] == ("interrupted" if stop == "signal" else "failed")
+    on_disk = episodes(part)
+    assert len(on_disk) == status["episodes_done"]              # every finished episode is on disk
+    ckpt = part.load_checkpoint()
+    assert ckpt["episodes_done"] <= len(on_disk)
+    monkeypatch.setattr(runner.RunFolder, "append_rows", append)
+    runner.resume(part, progress=False)
+    assert part.status()["status"] == "finished"
+    pd.testing.assert_frame_equal(episodes(whole), episodes(part))
