@@ -102,16 +102,25 @@ def split_overrides(settings: Dict[str, Any], env_cls, agent_cls) -> Dict[str, D
     return out
 
 
+def run_settings(settings: Dict[str, Any]) -> Dict[str, Any]:
+    """The settings among ``settings`` that belong to RunConfig (``episodes``, ``run.episodes``);
+    they decide which env and agent the others belong to."""
+    out = {}
+    for key, value in settings.items():
+        name = key.removeprefix("run.")
+        if "." not in name and find_leaf(RunConfig, name):
+            out[name] = value
+    return out
+
+
 def resolve_config(settings: Optional[Dict[str, Any]] = None, base: Optional[dict] = None, **kw) -> dict:
     """Validated, complete config dict. ``settings`` (and keyword arguments) are
     overrides by setting name, e.g. ``resolve_config(preset="report", seeds=[0], gp="exact")``;
     ``base`` is a recorded config (``config.json``) to start from instead of a preset.
     Raises ValueError with one line for anything wrong."""
     settings = {**(settings or {}), **kw}
-    run_keys = {k.partition(".")[2] if k.startswith("run.") else k: v for k, v in settings.items()
-                if (k.startswith("run.") or "." not in k) and find_leaf(RunConfig, k.removeprefix("run."))}
     start = from_dict(RunConfig, base["run"]) if base else RunConfig()
-    run = with_overrides(start, run_keys).check()
+    run = with_overrides(start, run_settings(settings)).check()
     if base and (run.env, run.agent) != (base["run"]["env"], base["run"]["agent"]):
         raise ValueError("a recorded config keeps its env and agent; start a new run to change them")
     env_cls, agent_cls = ENVS[run.env], AGENTS[run.agent]

@@ -101,7 +101,7 @@ class OnlineCollector:
                 new_rows = self._finish(ended, nxt.get("terminated").reshape(S))
                 rows += new_rows
                 bar.update(len(new_rows))
-                bar.set_postfix(steps=self.total)
+                bar.set_postfix(steps=self.total, refresh=False)
             td = self.td = td_next
             if new_rows and on_rows is not None:
                 on_rows(new_rows)

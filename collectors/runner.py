@@ -130,9 +130,9 @@ class RunFolder:
                 if not overwrite:
                     raise RunError(f"--out {out} holds a run: continue it with --resume {out}, "
                                    f"replace it with --overwrite, or choose another folder")
-                for n in RUN_FILES:
-                    if folder.file(n).exists():
-                        folder.file(n).unlink()
+                for path in [folder.file(n) for n in RUN_FILES] + list(folder.path.glob("*.png")):
+                    if path.exists():  # the run's files and the figures made from them
+                        path.unlink()
             elif folder.path.exists() and any(folder.path.iterdir()):
                 raise RunError(f"--out {out} is not empty and holds no run: choose another folder")
             folder.path.mkdir(parents=True, exist_ok=True)

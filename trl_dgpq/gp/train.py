@@ -8,6 +8,9 @@ the new kernel. Each GP's loss touches only its own parameters (for per-GP
 kernels), so GPs - and seeds - stay independent. Trouble (a failed factorisation,
 a non-finite loss or parameter) freezes that GP at its last good parameters and
 is logged; nothing NaN is ever left behind.
+
+Each call starts a fresh Adam, so no optimiser state outlives it: a GP's trained
+state is its kernel parameters and noise, which its ``state_dict`` holds.
 """
 from __future__ import annotations
 
