@@ -5,7 +5,9 @@ transition. Why not TorchRL's ``Collector``: it does run the policy in-process, 
 a learner could update between its batches, but it counts frames, not episodes:
 it cannot stop each seed after exactly ``episodes`` episodes while the others go
 on, nor mask finished seeds out of learning, and its per-batch bookkeeping
-(trajectory ids, step counts, batch assembly) would be paid on every single step.
+(trajectory ids, step counts, batch assembly) would be paid on every single step
+(measured with ``frames_per_batch=S``, 8 seeds: 2-3x the cost of stepping the env
+in this loop, about 0.5 ms more per batched step).
 Seeds that have finished stay in the batch (the env is batch-locked) but are
 masked out of learning and bookkeeping.
 
