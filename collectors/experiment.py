@@ -29,8 +29,8 @@ SECTIONS = ("run", "env", "agent")
 
 
 def parse_seeds(text) -> List[int]:
-    """'N' -> 0..N-1; 'A-B' -> A..B inclusive; 'a,b,c' -> that list (a list passes through)."""
-    if isinstance(text, (list, tuple)):
+    """'N' -> 0..N-1; 'A-B' -> A..B inclusive; 'a,b,c' -> that list (a list or range is checked)."""
+    if not isinstance(text, (str, int)):  # a list, tuple or range of seeds
         seeds = list(text)
         if not seeds or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds):
             raise ValueError(f"seeds must be non-negative integers, got {seeds}")
