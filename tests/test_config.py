@@ -99,6 +99,23 @@ def test_section5_is_derived_when_eps_or_delta_is_given():
     assert cli_config("--eps", "1", "--delta", "0.9", "--r-max", "2", "--eps1", "0.5")["agent"]["eps1"] == 0.5
 
 
+def test_int_settings_refuse_non_integral_floats():
+    for value in (2.5, 1.9999):
+        with pytest.raises(ValueError, match="episodes must be an integer"):
+            resolve_config(seeds=[0], episodes=value)        # JSON (config.json) gives floats, not text
+        with pytest.raises(ValueError, match="qhat_capacity must be an integer"):
+            with_overrides(DGPQConfig(), {"qhat_capacity": value})
+    assert resolve_config(seeds=[0], episodes=3.0)["run"]["episodes"] == 3   # integral floats are fine
+
+
+def test_user_overrides_beat_the_preset():
+    """Preset "paper" sets gamma=1, lipschitz=9, reward=paper; the user's values must win,
+    and the preset's other values stay."""
+    cfg = resolve_config(preset="paper", seeds=[0], gamma=0.5, reward="shaped")
+    assert cfg["agent"]["gamma"] == 0.5 and cfg["env"]["reward"] == "shaped"
+    assert cfg["agent"]["lipschitz"] == 9.0 and cfg["agent"]["v_max"] == 0.0
+
+
 @dataclass
 class Inner:
     """inner"""

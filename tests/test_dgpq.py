@@ -162,6 +162,25 @@ def test_overwrite_needs_a_value_2eps1_below_qhat():
     assert step(ag, 0.5, 0, 4.0, 0.6)["update"].item()
 
 
+def test_no_overwrite_without_an_add_even_where_the_gp_is_confident_and_low():
+    """Exact GP, RBF l = 0.1, s_f^2 = 1, noise 0.1; gamma = 0.5, V_max = 10, so r = 4 gives
+    q = 9, residual -1. Points at 0.5 and 0.6 (corr c = e^-0.5): at each add, -mean2 is
+    1/1.1 = 0.909 and (1+c)/(1.1+c) = 0.941, both <= 2 eps1 = 0.98: no overwrite. At the
+    midpoint 0.55 (corr c_m = e^-0.125 to both) var = 1 - 2 c_m^2/(1.1+c) = 0.087 <= 0.1, so
+    the gate blocks the add, although -mean = 2 c_m/(1.1+c) = 1.034 > 0.98: Algorithm 1 needs
+    sigma1^2 > sigma_tol2 for step 6, so Q̂ stays empty."""
+    ag = agent_1d(eps1=0.49)
+    c, cm = math.exp(-0.5), math.exp(-0.125)
+    for s in (0.5, 0.6):
+        out = ag.learn(t([[s]]), torch.tensor([0]), t([4.0]), t([[0.9]]), torch.tensor([False]))
+        assert out["learn"].item() and not out["update"].item()
+    out = ag.learn(t([[0.55]]), torch.tensor([0]), t([4.0]), t([[0.9]]), torch.tensor([False]))
+    assert out["var2"].item() == pytest.approx(1 - 2 * cm ** 2 / (1.1 + c))
+    assert out["mean2"].item() == pytest.approx(-2 * cm / (1.1 + c))
+    assert not out["learn"].item() and not out["update"].item()
+    assert ag.qhat.size().tolist() == [0] and ag.qhat_updates.tolist() == [0]
+
+
 def test_inactive_seeds_learn_nothing():
     ag = DGPQ(config(gp="exact"), seeds=[0, 1], state_dim=1, num_actions=2)
     out = ag.learn(t([0.5], [0.5]), torch.tensor([0, 0]), t(-1.0, -1.0), t([0.6], [0.6]),

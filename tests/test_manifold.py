@@ -7,7 +7,7 @@ import torch
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS, build, resolve_config, run_experiment
 from trl_dgpq.collectors.online import OnlineCollector
 from trl_dgpq.config import with_overrides
-from trl_dgpq.dgpq import DGPQConfig
+from trl_dgpq.dgpq import DGPQ, DGPQConfig
 from trl_dgpq.gp import ExactGP, ManifoldKernel, RBFKernel, fit
 from trl_dgpq.gp.train import _nll
 
@@ -175,3 +175,19 @@ def test_train_creates_tensors_on_the_gps_device():
            and isinstance(node.func.value, ast.Name) and node.func.value.id == "torch"
            and not any(kw.arg == "device" for kw in node.keywords)]
     assert not bad, f"tensors created without device= on lines {bad}"
+
+
+def test_manifold_kernel_trains_once_per_kernel_train_every_new_points():
+    """sigma_tol2 tiny: every step at a new state adds a point and none overwrites Q̂, so the
+    taken action's GP grows by one per step. kernel_train_every = kernel_min_points = 3:
+    trainings after the 3rd and the 6th point only, i.e. 2 after 7 points."""
+    cfg = with_overrides(DGPQConfig(), dict(gp="exact", kernel="manifold", sigma_tol2=1e-9, eps1=100.0,
+                                            kernel_train_every=3, kernel_min_points=3, kernel_train_steps=1,
+                                            lengthscale=0.1, gamma=0.5, v_max=10.0))
+    ag = DGPQ(cfg, seeds=[0], state_dim=2, num_actions=2)
+    for i in range(7):
+        out = ag.learn(torch.tensor([[0.1 * i, 0.5]], dtype=D), torch.tensor([0]), torch.tensor([1.0], dtype=D),
+                       torch.tensor([[0.1 * i, 0.6]], dtype=D), torch.tensor([False]))
+        assert out["learn"].item() and not out["update"].item()
+    assert ag.gp.size.tolist() == [[7, 0]]
+    assert ag.kernel_fits.tolist() == [2]

@@ -1,6 +1,7 @@
 """scripts/train.py and its run folder: files, status, refusals, one-line errors, signals."""
 import importlib.util
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -10,7 +11,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from trl_dgpq.collectors.experiment import TIMING_COLUMNS
+from trl_dgpq.collectors import runner
+from trl_dgpq.collectors.experiment import TIMING_COLUMNS, resolve_config
 from trl_dgpq.collectors.runner import RunFolder, read_csv_exact
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -124,6 +126,43 @@ def test_resume_refuses_a_finished_run(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         train.main(["--resume", str(tmp_path / "r")])
     assert exc.value.code == 2 and "finished" in capsys.readouterr().err
+
+
+def test_interrupt_writes_a_checkpoint_covering_every_episode_on_disk(tmp_path, monkeypatch):
+    """checkpoint_every=0 means "only on interrupt and at the end": a SIGINT after the 2nd
+    batch of rows (3 seeds, all truncated at step 10 -> 3 rows a batch) must leave a
+    checkpoint of exactly those 6 episodes and the whole CSV."""
+    config = resolve_config(agent="random", seeds=[0, 1, 2], episodes=4, max_steps=10, checkpoint_every=0)
+    folder = runner.RunFolder.create(str(tmp_path / "run"), "x")
+    calls, append = [0], runner.RunFolder.append_rows
+
+    def append_then_sigint(self, rows):
+        size = append(self, rows)
+        calls[0] += 1
+        if calls[0] == 2:
+            os.kill(os.getpid(), signal.SIGINT)
+        return size
+    monkeypatch.setattr(runner.RunFolder, "append_rows", append_then_sigint)
+    with pytest.raises(runner.Interrupted):
+        runner.start(config, folder, progress=False)
+    ckpt = folder.load_checkpoint()
+    assert ckpt is not None
+    assert ckpt["episodes_done"] == 6 == folder.status()["episodes_done"] == len(folder.episodes())
+    assert ckpt["csv_bytes"] == folder.csv_size()
+
+
+def test_checkpoint_every_counts_episodes_per_seed(tmp_path, monkeypatch):
+    """3 seeds, all truncated at step 10 (episodes end 3 at a time), 4 episodes each,
+    checkpoint_every=2 per seed: one periodic checkpoint at 6 episodes, then the final one at 12."""
+    config = resolve_config(agent="random", seeds=[0, 1, 2], episodes=4, max_steps=10, checkpoint_every=2)
+    saved, save = [], runner.RunFolder.save_checkpoint
+
+    def spy(self, state):
+        saved.append(state["episodes_done"])
+        return save(self, state)
+    monkeypatch.setattr(runner.RunFolder, "save_checkpoint", spy)
+    runner.start(config, runner.RunFolder.create(str(tmp_path / "run"), "x"), progress=False)
+    assert saved == [6, 12]
 
 
 def test_sigint_on_a_real_run_checkpoints_and_resumes_to_the_same_csv(tmp_path):

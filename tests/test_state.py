@@ -112,6 +112,20 @@ def test_env_round_trip():
         b.step_mdp(tb)
 
 
+def test_dgpq_state_includes_the_tie_stream():
+    """Empty Q̂: every action ties, so each choice is a draw of the tie stream; a restored
+    agent must go on with the next draws, not start the stream again."""
+    from trl_dgpq.dgpq import DGPQ, DGPQConfig
+    obs = torch.zeros(3, 2, dtype=D)
+    a = DGPQ(DGPQConfig(), seeds=[0, 1, 2], state_dim=2, num_actions=4)
+    first = torch.stack([a.select_action(obs) for _ in range(20)])
+    b = DGPQ(DGPQConfig(), seeds=[0, 1, 2], state_dim=2, num_actions=4)
+    b.load_state_dict(through_disk(a.state_dict()))
+    nxt_a = torch.stack([a.select_action(obs) for _ in range(20)])
+    assert torch.equal(nxt_a, torch.stack([b.select_action(obs) for _ in range(20)]))
+    assert not torch.equal(nxt_a, first)
+
+
 AGENT_CASES = {
     "dgpq-sparse": dict(agent="dgpq", gp="sparse", budget=8),
     "dgpq-exact": dict(agent="dgpq", gp="exact", capacity=2),
