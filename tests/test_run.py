@@ -1,7 +1,6 @@
 """scripts/train.py and its run folder: files, status, refusals, one-line errors, signals."""
 import importlib.util
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -128,21 +127,13 @@ def test_resume_refuses_a_finished_run(tmp_path, capsys):
     assert exc.value.code == 2 and "finished" in capsys.readouterr().err
 
 
-def test_interrupt_writes_a_checkpoint_covering_every_episode_on_disk(tmp_path, monkeypatch):
+def test_interrupt_writes_a_checkpoint_covering_every_episode_on_disk(tmp_path, stop_run_after):
     """checkpoint_every=0 means "only on interrupt and at the end": a SIGINT after the 2nd
     batch of rows (3 seeds, all truncated at step 10 -> 3 rows a batch) must leave a
     checkpoint of exactly those 6 episodes and the whole CSV."""
     config = resolve_config(agent="random", seeds=[0, 1, 2], episodes=4, max_steps=10, checkpoint_every=0)
     folder = runner.RunFolder.create(str(tmp_path / "run"), "x")
-    calls, append = [0], runner.RunFolder.append_rows
-
-    def append_then_sigint(self, rows):
-        size = append(self, rows)
-        calls[0] += 1
-        if calls[0] == 2:
-            os.kill(os.getpid(), signal.SIGINT)
-        return size
-    monkeypatch.setattr(runner.RunFolder, "append_rows", append_then_sigint)
+    stop_run_after(2, "signal")
     with pytest.raises(runner.Interrupted):
         runner.start(config, folder, progress=False)
     ckpt = folder.load_checkpoint()

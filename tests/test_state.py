@@ -2,8 +2,6 @@
 way, gives bitwise the same results as the original. And an interrupted run, resumed,
 writes the same episodes.csv as an uninterrupted one."""
 import io
-import os
-import signal
 
 import pandas as pd
 import pytest
@@ -168,7 +166,7 @@ def episodes(folder):
 
 @pytest.mark.parametrize("stop", ["signal", "crash"])
 @pytest.mark.parametrize("case", sorted(AGENT_CASES))
-def test_interrupted_run_resumes_to_the_same_csv(tmp_path, monkeypatch, case, stop):
+def test_interrupted_run_resumes_to_the_same_csv(tmp_path, stop_run_after, case, stop):
     """"signal": SIGINT after the 5th batch of rows (checkpoint at the stop); "crash": an
     error after the 5th batch (the last checkpoint is older, rows past it are on disk and
     must be replaced, not duplicated)."""
@@ -177,18 +175,7 @@ def test_interrupted_run_resumes_to_the_same_csv(tmp_path, monkeypatch, case, st
     runner.start(config, whole, progress=False)
 
     part = runner.RunFolder.create(str(tmp_path / "part"), "x")
-    calls, append = [0], runner.RunFolder.append_rows
-
-    def append_then_stop(self, rows):
-        size = append(self, rows)
-        calls[0] += 1
-        if calls[0] == 5:
-            if stop == "signal":
-                os.kill(os.getpid(), signal.SIGINT)
-            else:
-                raise RuntimeError("simulated crash")
-        return size
-    monkeypatch.setattr(runner.RunFolder, "append_rows", append_then_stop)
+    stop_run_after(5, stop)
     with pytest.raises(runner.Interrupted if stop == "signal" else RuntimeError):
         runner.start(config, part, progress=False)
     status = part.status()
@@ -197,7 +184,6 @@ def test_interrupted_run_resumes_to_the_same_csv(tmp_path, monkeypatch, case, st
     assert len(on_disk) == status["episodes_done"]              # every finished episode is on disk
     ckpt = part.load_checkpoint()
     assert ckpt["episodes_done"] <= len(on_disk)
-    monkeypatch.setattr(runner.RunFolder, "append_rows", append)
     runner.resume(part, progress=False)
     assert part.status()["status"] == "finished"
     pd.testing.assert_frame_equal(episodes(whole), episodes(part))

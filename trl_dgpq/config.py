@@ -18,7 +18,6 @@ with one-line errors.
 from __future__ import annotations
 
 import dataclasses
-import math
 import typing
 from dataclasses import dataclass, field, fields, is_dataclass
 from typing import Any, Callable, Dict, List, Optional, Tuple
@@ -166,8 +165,6 @@ def to_dict(cfg) -> dict:
             return {k: plain(x) for k, x in v.items()}
         if isinstance(v, (list, tuple)):
             return [plain(x) for x in v]
-        if isinstance(v, float) and not math.isfinite(v):
-            return v  # json writes Infinity/NaN; parse_value reads them back
         return v
     return plain(dataclasses.asdict(cfg))
 

@@ -1,0 +1,26 @@
+import os
+import signal
+
+import pytest
+
+from trl_dgpq.collectors import runner
+
+
+@pytest.fixture
+def stop_run_after(monkeypatch):
+    """``stop_run_after(n, how)``: the next run stops right after its n-th batch of rows is on
+    disk, by SIGINT ("signal") or by an exception ("crash"); later batches pass untouched."""
+    def arm(batches: int, how: str = "signal"):
+        calls, append = [0], runner.RunFolder.append_rows
+
+        def append_then_stop(self, rows):
+            size = append(self, rows)
+            calls[0] += 1
+            if calls[0] == batches:
+                if how == "signal":
+                    os.kill(os.getpid(), signal.SIGINT)
+                else:
+                    raise RuntimeError("simulated crash")
+            return size
+        monkeypatch.setattr(runner.RunFolder, "append_rows", append_then_stop)
+    return arm
