@@ -251,9 +251,8 @@ def start(config: dict, folder: RunFolder, progress: bool = True) -> pd.DataFram
     return _execute(config, folder, None, progress)
 
 
-def resume(folder: RunFolder, progress: bool = True):
-    """Continue the run in ``folder`` from its last checkpoint (from the start if none).
-    Returns (config, episodes DataFrame)."""
+def resumable_config(folder: RunFolder) -> dict:
+    """The recorded config of the run in ``folder``, if it can be resumed (RunError if not)."""
     from .experiment import load_sections  # validates the recorded config
     status = folder.status() or {}
     if status.get("status") == "finished":
@@ -271,7 +270,13 @@ def resume(folder: RunFolder, progress: bool = True):
     if changed:
         print(f"note: versions differ from the interrupted run: {changed}", file=sys.stderr)
     check_memory(config)
-    return config, _execute(config, folder, folder.load_checkpoint(), progress)
+    return config
+
+
+def resume(folder: RunFolder, config: dict, progress: bool = True) -> pd.DataFrame:
+    """Continue the run in ``folder`` (config from ``resumable_config``) from its last
+    checkpoint, or from the start if it has none."""
+    return _execute(config, folder, folder.load_checkpoint(), progress)
 
 
 def _alive(pid) -> bool:

@@ -89,8 +89,9 @@ def _main(argv=None) -> int:
                 parser.error("--resume continues a run as it was configured: give no settings, --config, --out "
                              "or --overwrite with it")
             folder = runner.RunFolder.existing(args.resume)
+            config = runner.resumable_config(folder)
             print(f"resuming {folder.path}")
-            config, df = runner.resume(folder, progress=not args.no_progress)
+            df = runner.resume(folder, config, progress=not args.no_progress)
         else:
             base = None
             if args.config:

@@ -184,6 +184,6 @@ def test_interrupted_run_resumes_to_the_same_csv(tmp_path, stop_run_after, case,
     assert len(on_disk) == status["episodes_done"]              # every finished episode is on disk
     ckpt = part.load_checkpoint()
     assert ckpt["episodes_done"] <= len(on_disk)
-    runner.resume(part, progress=False)
+    runner.resume(part, runner.resumable_config(part), progress=False)
     assert part.status()["status"] == "finished"
     pd.testing.assert_frame_equal(episodes(whole), episodes(part))
