@@ -25,4 +25,4 @@ bench: $(STAMP)
 	$(BIN)/python scripts/bench.py dgpq
 
 clean:
-	rm -rf $(VENV) runs bench-*.json
+	rm -rf $(VENV) runs bench-*.json crash-check.json
