@@ -17,9 +17,9 @@ from typing import Any, Dict, List, Optional, Tuple
 
 import pandas as pd
 
-from trl_dgpq.agents import AGENTS
+from trl_dgpq.agents import AGENTS, make_agent
 from trl_dgpq.config import find_leaf, from_dict, leaves, setting, to_dict, with_overrides
-from trl_dgpq.envs import ENVS
+from trl_dgpq.envs import ENVS, make_env
 from trl_dgpq.presets import preset_overrides
 
 from .online import OnlineCollector
@@ -155,9 +155,8 @@ def build(config: dict, seeds: Optional[List[int]] = None, device="cpu"):
     """The env and agent of ``config`` for ``seeds`` (default: the config's)."""
     run, env_cfg, agent_cfg = load_sections(config)
     seeds = list(run.seeds) if seeds is None else list(seeds)
-    env_cls, agent_cls = classes(config["run"])
-    env = env_cls(seeds, env_cfg, device=device)
-    return env, agent_cls.make(agent_cfg, env, seeds)
+    env = make_env(run.env, env_cfg, seeds, device=device)
+    return env, make_agent(run.agent, agent_cfg, env, seeds)
 
 
 def memory_estimate(config: dict) -> int:

@@ -31,7 +31,7 @@ from typing import Optional
 import pandas as pd
 import torch
 
-from .experiment import build, check_memory, describe
+from .experiment import build, check_memory, describe, load_sections
 from .online import OnlineCollector
 
 CONFIG, EPISODES, STATUS, CHECKPOINT = "config.json", "episodes.csv", "status.json", "checkpoint.pt"
@@ -253,7 +253,6 @@ def start(config: dict, folder: RunFolder, progress: bool = True) -> pd.DataFram
 
 def resumable_config(folder: RunFolder) -> dict:
     """The recorded config of the run in ``folder``, if it can be resumed (RunError if not)."""
-    from .experiment import load_sections  # validates the recorded config
     status = folder.status() or {}
     if status.get("status") == "finished":
         raise RunError(f"{folder.path} is finished; nothing to resume")

@@ -105,9 +105,10 @@ class SeedBatchedEnv(EnvBase):
             if action.dtype == torch.bool or action.is_complex():
                 raise ValueError(f"action must be integer indices in [0, {n}), got dtype {action.dtype}")
             if action.is_floating_point():
-                if not (torch.isfinite(action) & (action == action.round())).all():
+                fractional = ~(torch.isfinite(action) & (action == action.round()))
+                if fractional.any():
                     raise ValueError(f"action must be integer indices in [0, {n}), got non-integral "
-                                     f"{action[~(torch.isfinite(action) & (action == action.round()))][:3].tolist()}")
+                                     f"{action[fractional][:3].tolist()}")
                 action = action.long()
             bad = (action < 0) | (action >= n)
             if bad.any():

@@ -15,7 +15,7 @@ from .kernels import RBFKernel
 from .manifold import ManifoldKernel
 from .sparse import SparseOnlineGP
 from .train import fit
-from .factory import GP_BACKENDS, KERNELS, GPConfig, make_gp, make_kernel  # noqa: E402
+from .factory import GP_BACKENDS, KERNELS, GPConfig, make_gp, make_kernel
 
 __all__ = ["BatchedGP", "GPNumericalError", "ExactGP", "SparseOnlineGP", "RBFKernel", "ManifoldKernel", "fit",
            "GPConfig", "GP_BACKENDS", "KERNELS", "make_gp", "make_kernel"]
