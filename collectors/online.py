@@ -100,7 +100,7 @@ class OnlineCollector:
             ended = nxt.get("done").reshape(S) & active
             new_rows = []
             if ended.any():
-                new_rows = self._finish(ended, nxt.get("terminated").reshape(S))
+                new_rows = self._finish(ended, nxt)
                 rows += new_rows
                 bar.update(len(new_rows))
                 bar.set_postfix(steps=self.total, refresh=False)
@@ -112,10 +112,14 @@ class OnlineCollector:
         bar.close()
         return frame(rows)
 
-    def _finish(self, ended: torch.Tensor, terminated: torch.Tensor) -> List[dict]:
-        """Rows of the episodes that just ended; reset their accumulators."""
+    def _finish(self, ended: torch.Tensor, nxt) -> List[dict]:
+        """Rows of the episodes that just ended (``nxt``: the step's "next" entries, before
+        any reset); reset their accumulators."""
         self.episode += ended
-        stats = {k: v.tolist() for k, v in self.agent.episode_stats().items()}
+        S = len(self.seeds)
+        terminated = nxt.get("terminated").reshape(S)
+        stats = {k: nxt.get(k).reshape(S).tolist() for k in getattr(self.env, "episode_info", ())}
+        stats.update({k: v.tolist() for k, v in self.agent.episode_stats().items()})
         rows = []
         for i in ended.nonzero()[:, 0].tolist():
             steps = int(self.steps[i])

@@ -2,9 +2,10 @@
 ``trl_dgpq.envs``. A new env: one file with its class and ``Config`` dataclass,
 one line in ``ENVS``, one entry in ``trl_dgpq/presets.py``."""
 from .base import SeedBatchedEnv
+from .liquidation import LiquidationConfig, LiquidationEnv
 from .square import SquareConfig, SquareEnv
 
-ENVS = {"square": SquareEnv}
+ENVS = {"square": SquareEnv, "liquidation": LiquidationEnv}
 
 
 def make_env(name: str, cfg, seeds, device="cpu") -> SeedBatchedEnv:
@@ -13,4 +14,5 @@ def make_env(name: str, cfg, seeds, device="cpu") -> SeedBatchedEnv:
     return ENVS[name](seeds, cfg, device=device)
 
 
-__all__ = ["ENVS", "make_env", "SeedBatchedEnv", "SquareEnv", "SquareConfig"]
+__all__ = ["ENVS", "make_env", "SeedBatchedEnv", "SquareEnv", "SquareConfig", "LiquidationEnv",
+           "LiquidationConfig"]

@@ -31,6 +31,8 @@ class SeedBatchedEnv(EnvBase):
     batch_locked = True
     Config = None                         # the env's settings dataclass (with a max_steps field)
     _state_names: Tuple[str, ...] = ()    # tensors that change as the env runs
+    episode_info: Tuple[str, ...] = ()    # (S,) entries of each step's output holding running episode
+                                          # totals; their values at the episode's end go in its CSV row
 
     def __init__(self, seeds: Sequence[int] = (0,), cfg=None, device="cpu", **overrides):
         cfg = replace(cfg if cfg is not None else self.Config(), **overrides)

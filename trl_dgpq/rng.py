@@ -22,6 +22,8 @@ TIE_STREAM = 1     # DGPQ: tie-breaking among equal Q̂ values
 ENV_STREAM = 2     # environment noise
 KERNEL_STREAM = 3  # initial weights of manifold kernels
 POLICY_STREAM = 4  # random agent's actions
+PRICE_STREAM = 5   # liquidation: price noise, keyed by (seed, episode) for common random numbers
+LEARNER_STREAM = 6  # neural learners (DDPG): initial weights, replay sampling, exploration noise
 
 
 def _signed(c: int) -> int:
@@ -92,6 +94,26 @@ class SeedStreams:
         self.counter += 1
         return self._buf[:, i].view(-1, *shape)
 
+    def normal(self, *shape: int) -> torch.Tensor:
+        """Standard normal float64 ``(S, *shape)`` (Box-Muller on one uniform draw of twice the size)."""
+        u = self.uniform(2, *shape)
+        return box_muller(u[:, 0], u[:, 1])
+
+    def uniform_at(self, index: torch.Tensor, n: int) -> torch.Tensor:
+        """Uniform [0, 1) ``(S, n)``: draw number ``index[i]`` of seed i, without moving the
+        counter. For numbers keyed by something other than the step count (liquidation's
+        price path of episode ``index[i]``), so they never depend on what came before."""
+        if n > self.MAX_PER_DRAW:
+            raise ValueError(f"at most {self.MAX_PER_DRAW} numbers per draw")
+        idx = torch.arange(n, dtype=torch.int64, device=self.key.device)
+        z = splitmix64(self.key[:, None] + index.to(torch.int64)[:, None] * self.MAX_PER_DRAW + idx)
+        return _lsr(z, 11).double() * 2.0 ** -53
+
+    def seed_for_torch(self) -> list:
+        """One 63-bit integer per seed, derived from its key: a seed for ``torch.manual_seed``
+        where a library draws from torch's global generator."""
+        return _lsr(splitmix64(self.key), 1).tolist()
+
     def state_dict(self) -> dict:
         return {"key": self.key.clone(), "counter": self.counter}
 
@@ -101,3 +123,8 @@ class SeedStreams:
             raise ValueError("random-stream state belongs to other seeds or another stream")
         self.counter = int(state["counter"])
         self._buf, self._buf_start, self._buf_shape = None, 0, None  # values do not depend on buffering
+
+
+def box_muller(u1: torch.Tensor, u2: torch.Tensor) -> torch.Tensor:
+    """Standard normals from two uniforms in [0, 1) of the same shape."""
+    return torch.sqrt(-2.0 * torch.log1p(-u1)) * torch.cos(2.0 * torch.pi * u2)

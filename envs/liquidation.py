@@ -1,0 +1,190 @@
+"""Optimal liquidation in the Almgren-Chriss market (AC00; seed report 4.4; SPEC 3.2),
+batched over seeds.
+
+Sell ``shares`` in ``trades`` trades over ``horizon`` days. Action: the fraction of
+the remaining shares to sell, in [0, 1] (rounded to whole shares); the last trade
+sells everything. Trade k executes at S_{k-1} - (eps sign(n_k) + (eta / tau) n_k)
+(no price noise before the first trade); then S_k = S_{k-1} + sigma sqrt(tau) xi_k
+- gamma n_k. The episode terminates when no shares are left.
+
+Observation (8): the last six log-returns log(S_k / S_{k-1}), trades left / N,
+shares left / X. Also in every step's TensorDict, as running totals of the
+episode (the runner puts their final values in the episode's CSV row):
+``implementation_shortfall`` = X S_0 - sum n_k exec_k and ``ac_cost`` = shortfall +
+lambda sigma^2 tau sum x_k^2 (x_k held after trade k), whose expectation for the
+AC schedule is U*.
+
+Rewards:
+  "shortfall" (default): r_k = -[n_k (S_0 - exec_k) + lambda sigma^2 tau x_k^2] / reward_scale,
+      so the return is -ac_cost / reward_scale and its expectation is maximised
+      exactly by the AC schedule (rewards in $M with the default scale).
+  "utility-ratio" (the seed report's): (|U(x_{k-1})| - |U(x_k)|) / |U(x_{k-1})| with
+      U(x) = E*(x) + lambda V*(x) over the full horizon. Not aligned with the
+      objective: selling everything at once earns the largest single reward.
+
+Common random numbers: the xi of seed s's episode e are draw e of the seed's price
+stream (``SeedStreams.uniform_at``), so every agent meets the same price paths,
+whatever it does and whoever shares its batch.
+
+Actions: ``action_levels`` = 0 gives a continuous action (``Bounded`` [0, 1], shape
+(S, 1)); n >= 2 gives n discrete levels 0, 1/(n-1), ..., 1 (``Categorical``), for
+agents that need discrete actions (DGPQ: the seed report used 101). With levels,
+``level_noise`` > 0 adds Ornstein-Uhlenbeck noise (theta ``level_noise_theta``,
+dt = 1, reset every episode) to the chosen fraction, from the seed's env stream.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+
+from trl_dgpq.almgren_chriss import ACModel
+from trl_dgpq.config import setting
+from trl_dgpq.rng import PRICE_STREAM, SeedStreams, box_muller
+
+from .base import SeedBatchedEnv
+
+REWARDS = ("shortfall", "utility-ratio")
+RETURNS = 6  # log-returns in the observation
+
+
+@dataclass
+class LiquidationConfig:
+    """Almgren-Chriss liquidation (SPEC 3.2; defaults: the course environment)."""
+    reward: str = setting("shortfall", "shortfall: minus each trade's risk-adjusted cost / reward_scale; "
+                                       "utility-ratio: the seed report's", choices=REWARDS)
+    reward_scale: float = setting(1e6, "dollars per unit of the shortfall reward")
+    shares: int = setting(1_000_000, "shares to sell, X")
+    start_price: float = setting(50.0, "S_0, dollars")
+    annual_volatility: float = setting(0.12, "annual volatility of the price")
+    trading_days: float = setting(250.0, "trading days per year")
+    spread: float = setting(0.125, "bid-ask spread, dollars (fixed cost eps = spread / 2)")
+    daily_volume: float = setting(5e6, "daily volume, shares (eta = spread / (0.01 volume), "
+                                       "gamma = spread / (0.1 volume))")
+    horizon: float = setting(60.0, "liquidation time T, days")
+    trades: int = setting(60, "number of trades N (the episode's length at most)")
+    lam: float = setting(1e-6, "risk aversion lambda")
+    price_noise: bool = setting(True, "random price moves (off: the price moves only by impact; "
+                                      "sigma still sets kappa and the risk term)")
+    action_levels: int = setting(0, "0: continuous sell fraction in [0, 1]; n >= 2: n levels 0, 1/(n-1), .., 1")
+    level_noise: float = setting(0.0, "sigma of OU noise on the chosen level's fraction (0: none)")
+    level_noise_theta: float = setting(0.15, "theta of that OU noise")
+
+    @property
+    def max_steps(self) -> int:
+        return self.trades
+
+    def check(self) -> "LiquidationConfig":
+        def positive(name):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be > 0, got {v}")
+        for name in ("reward_scale", "shares", "start_price", "annual_volatility", "trading_days",
+                     "daily_volume", "horizon", "trades", "spread"):
+            positive(name)
+        for name in ("lam", "level_noise", "level_noise_theta"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be >= 0, got {v}")
+        if self.action_levels == 1 or self.action_levels < 0:
+            raise ValueError(f"action_levels must be 0 (continuous) or >= 2, got {self.action_levels}")
+        if self.level_noise > 0 and self.action_levels == 0:
+            raise ValueError("level_noise applies to discrete levels: set action_levels >= 2")
+        ACModel.from_config(self).kappa  # eta~ > 0
+        return self
+
+
+class LiquidationEnv(SeedBatchedEnv):
+    """TorchRL env, ``batch_size=[len(seeds)]``; observations float64 ``(S, 8)``."""
+
+    Config = LiquidationConfig
+    episode_info = ("implementation_shortfall", "ac_cost")
+    _state_names = ("x", "price", "returns", "shortfall", "ac_cost", "episode", "ou", "xi")
+
+    def __init__(self, seeds=(0,), cfg: LiquidationConfig | None = None, device="cpu", **overrides):
+        super().__init__(seeds, cfg, device, **overrides)
+        cfg = self.cfg
+        self.model = ACModel.from_config(cfg)
+        S, f64 = self.num_seeds, dict(dtype=torch.float64, device=self.device)
+        self.x = torch.full((S,), float(cfg.shares), **f64)          # shares held
+        self.price = torch.full((S,), cfg.start_price, **f64)        # S_{k-1}: the next trade's price
+        self.returns = torch.zeros(S, RETURNS, **f64)
+        self.shortfall = torch.zeros(S, **f64)
+        self.ac_cost = torch.zeros(S, **f64)
+        self.episode = torch.full((S,), -1, dtype=torch.long, device=self.device)  # index of the current episode
+        self.ou = torch.zeros(S, **f64)
+        self.xi = torch.zeros(S, cfg.trades, **f64)  # the current episode's price noise
+        self.price_rng = SeedStreams(self.seeds, PRICE_STREAM, device=self.device)  # keyed: no state
+        self.levels = torch.linspace(0, 1, cfg.action_levels, **f64) if cfg.action_levels else None
+
+    def _make_specs(self) -> None:
+        S, cfg = self.num_seeds, self.cfg
+        f64 = dict(dtype=torch.float64, device=self.device)
+        self.observation_spec = Composite(
+            observation=Unbounded(shape=(S, RETURNS + 2), **f64),
+            implementation_shortfall=Unbounded(shape=(S,), **f64),
+            ac_cost=Unbounded(shape=(S,), **f64),
+            shape=(S,), device=self.device)
+        if cfg.action_levels:
+            self.action_spec = Categorical(cfg.action_levels, shape=(S,), device=self.device)
+        else:
+            self.action_spec = Bounded(0.0, 1.0, shape=(S, 1), **f64)
+        self.reward_spec = Unbounded(shape=(S, 1), **f64)
+
+    def _set_seed(self, seed):
+        super()._set_seed(seed)
+        if seed is not None:
+            self.price_rng = SeedStreams(self.seeds, PRICE_STREAM, device=self.device)
+
+    def _observation(self, trades_done):
+        cfg = self.cfg
+        left = (cfg.trades - trades_done).to(torch.float64) / cfg.trades
+        obs = torch.cat([self.returns, left[:, None], (self.x / cfg.shares)[:, None]], -1)
+        return self._td(observation=obs, implementation_shortfall=self.shortfall.clone(),
+                        ac_cost=self.ac_cost.clone())
+
+    def _initial(self, mask):
+        self.x[mask] = float(self.cfg.shares)
+        self.price[mask] = self.cfg.start_price
+        for name in ("returns", "shortfall", "ac_cost", "ou"):
+            getattr(self, name)[mask] = 0.0
+        self.episode += mask
+        # xi of (seed, episode): draw ``episode`` of the seed's price stream, whatever happened before.
+        u = self.price_rng.uniform_at(self.episode, 2 * self.cfg.trades).view(-1, 2, self.cfg.trades)
+        self.xi[mask] = box_muller(u[:, 0], u[:, 1])[mask] * float(self.cfg.price_noise)
+        return self._observation(self.t)
+
+    def _fraction(self, action):
+        if self.levels is None:
+            return action[:, 0].to(torch.float64)
+        fraction = self.levels[action]
+        cfg = self.cfg
+        if cfg.level_noise > 0:
+            self.ou.mul_(1 - cfg.level_noise_theta).add_(cfg.level_noise * self.rng.normal())
+            fraction = (fraction + self.ou).clamp(0.0, 1.0)
+        return fraction
+
+    def _transition(self, action):
+        cfg, m = self.cfg, self.model
+        x = self.x
+        last = self.t + 1 >= cfg.trades
+        n = torch.where(last, x, torch.round(self._fraction(action) * x).clamp(min=0.0).minimum(x))
+        exec_price = self.price - m.eps * torch.sign(n) - (m.eta / m.tau) * n
+        trade_cost = n * (cfg.start_price - exec_price)
+        x_new = x - n
+        risk = m.lam * m.sigma2 * m.tau * x_new * x_new
+        if cfg.reward == "shortfall":
+            reward = -(trade_cost + risk) / cfg.reward_scale
+        else:
+            u_prev, u_now = m.utility(x).abs(), m.utility(x_new).abs()
+            reward = (u_prev - u_now) / u_prev
+        xi = self.xi.gather(1, self.t.clamp_max(cfg.trades - 1)[:, None])[:, 0]
+        new_price = self.price + math.sqrt(m.sigma2 * m.tau) * xi - m.gamma * n
+        self.returns.copy_(torch.cat([self.returns[:, 1:], torch.log(new_price / self.price)[:, None]], -1))
+        self.price.copy_(new_price)  # (in place: assigning a tensor attribute of a Module is slow)
+        self.x.copy_(x_new)
+        self.shortfall.add_(trade_cost)
+        self.ac_cost.add_(trade_cost + risk)
+        return self._observation(self.t + 1), reward, x_new <= 0  # (the base advances t after this)

@@ -1,0 +1,189 @@
+"""The Almgren-Chriss liquidation env and its closed-form optimum, against hand
+calculations and the reference numbers of SPEC 3.2."""
+import math
+
+import pytest
+import torch
+from torchrl.envs.utils import check_env_specs
+
+from trl_dgpq.almgren_chriss import ACModel
+from trl_dgpq.collectors.experiment import build, resolve_config, run_experiment
+from trl_dgpq.collectors.online import OnlineCollector
+from trl_dgpq.envs import LiquidationConfig, LiquidationEnv
+
+D = torch.float64
+# The defaults by hand: sigma^2 = (0.12 / sqrt(250) * 50)^2 = 36 / 250 per day, tau = 1 day,
+# eta = 0.125 / (0.01 * 5e6), gamma = 0.125 / (0.1 * 5e6), eps = 0.125 / 2.
+SIGMA2, ETA, GAMMA, EPS, LAM, X = 0.144, 2.5e-6, 2.5e-7, 0.0625, 1e-6, 1e6
+U_STAR = 704_723.22
+
+
+def test_model_matches_the_reference_numbers():
+    m = ACModel.from_config(LiquidationConfig())
+    assert (m.sigma2, m.eta, m.gamma, m.eps, m.tau) == pytest.approx((SIGMA2, ETA, GAMMA, EPS, 1.0))
+    # kappa by bisection on (2 / tau^2)(cosh kappa - 1) = lambda sigma^2 / eta~, not the model's acosh
+    target, lo, hi = LAM * SIGMA2 / (ETA - GAMMA / 2), 0.0, 5.0
+    for _ in range(200):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if 2 * (math.cosh(mid) - 1) < target else (lo, mid)
+    assert m.kappa == pytest.approx(lo, rel=1e-12) and m.kappa == pytest.approx(0.24562, abs=1e-5)
+    assert m.expected_shortfall() == pytest.approx(477_712.60, abs=0.01)
+    assert math.sqrt(m.variance()) == pytest.approx(476_456, abs=1)
+    assert m.utility() == pytest.approx(U_STAR, abs=0.01)
+    assert m.trade_list()[0] == pytest.approx(217_778, abs=1)
+
+
+def test_closed_forms_equal_the_sums_over_the_optimal_schedule():
+    """E* and V* (closed forms) against E = eps X + gamma X^2 / 2 + (eta~ / tau) sum n^2 and
+    V = sigma^2 tau sum x^2 summed over the schedule, for the defaults and another market."""
+    for cfg in (LiquidationConfig(), LiquidationConfig(trades=12, horizon=30, lam=3e-6, shares=250_000)):
+        m = ACModel.from_config(cfg)
+        n = m.trade_list()
+        x = m.holdings()[1:]
+        e = EPS * n.sum() + 0.5 * m.gamma * n.sum() ** 2 + (m.eta - m.gamma * m.tau / 2) / m.tau * (n * n).sum()
+        v = m.sigma2 * m.tau * (x * x).sum()
+        assert float(n.sum()) == pytest.approx(cfg.shares)
+        assert m.expected_shortfall() == pytest.approx(float(e), rel=1e-10)
+        assert m.variance() == pytest.approx(float(v), rel=1e-10)
+
+
+def test_the_optimum_beats_nearby_schedules():
+    m = ACModel.from_config(LiquidationConfig())
+    best = m.cost(m.trade_list())["utility"]
+    g = torch.Generator().manual_seed(0)
+    for _ in range(20):
+        n = m.trade_list() * (1 + 0.05 * torch.randn(60, generator=g, dtype=D))
+        n = n / n.sum() * X
+        assert m.cost(n)["utility"] > best
+
+
+def test_spec_check_both_action_kinds():
+    check_env_specs(LiquidationEnv([0, 1]))
+    check_env_specs(LiquidationEnv([0, 1], action_levels=21, level_noise=0.2))
+
+
+def rollout(env, fractions):
+    """Step all seeds with the given sell fraction per step (S,) until all are done;
+    returns the last step's "next" TensorDict."""
+    td = env.reset()
+    for f in fractions:
+        td["action"] = f[:, None].to(D) if env.cfg.action_levels == 0 else f
+        td = env.step(td)
+        nxt = td["next"]
+        if nxt["done"].all():
+            return nxt
+        td = env.step_mdp(td)
+    return nxt
+
+
+def test_noise_free_optimal_schedule_costs_E_star():
+    """Price noise off (sigma still sets kappa and the risk term): the simulated
+    shortfall of the AC schedule is E* up to whole-share rounding."""
+    env = LiquidationEnv([0], price_noise=False)
+    f = env.model.sell_fractions()
+    nxt = rollout(env, [f[k:k + 1] for k in range(60)])
+    assert float(nxt["implementation_shortfall"]) == pytest.approx(477_712.60, abs=50)
+    assert float(nxt["ac_cost"]) == pytest.approx(U_STAR, abs=50)
+
+
+def test_one_step_rewards_by_hand():
+    """First trade selling 30%: n = 300,000 at 50 - 0.0625 - 2.5e-6 * 300,000 = 49.1875."""
+    n, x = 300_000, 700_000
+    cost = n * (50 - 49.1875) + LAM * SIGMA2 * x ** 2
+    env = LiquidationEnv([0])
+    td = env.reset().set("action", torch.tensor([[0.3]], dtype=D))
+    out = env.step(td)["next"]
+    assert float(out["reward"]) == pytest.approx(-cost / 1e6, rel=1e-12)
+    assert float(out["implementation_shortfall"]) == pytest.approx(n * 0.8125, rel=1e-12)
+    assert out["observation"][0, -2:].tolist() == pytest.approx([59 / 60, 0.7])
+    # utility-ratio: U(x) = eps x + (U* - eps X)(x / X)^2 (E*, V* are eps x plus quadratics in x)
+    u = lambda s: EPS * s + (704_723.2174653506 - EPS * X) * (s / X) ** 2  # noqa: E731
+    env = LiquidationEnv([0], reward="utility-ratio")
+    out = env.step(env.reset().set("action", torch.tensor([[0.3]], dtype=D)))["next"]
+    assert float(out["reward"]) == pytest.approx((u(X) - u(x)) / u(X), rel=1e-9)
+
+
+def test_last_trade_sells_everything_and_levels_are_fractions():
+    env = LiquidationEnv([0], trades=3, action_levels=5)     # levels 0, .25, .5, .75, 1
+    td = env.reset()
+    sold = []
+    for a in (1, 2, 0):                                      # 25%, then 50%, then "0%" at the last trade
+        td = env.step(td.set("action", torch.tensor([a])))
+        sold.append(round(1e6 - float(td["next", "observation"][0, -1]) * 1e6))
+        td = env.step_mdp(td)
+    assert sold == [250_000, 625_000, 1_000_000]
+    env = LiquidationEnv([0], action_levels=5)
+    out = env.step(env.reset().set("action", torch.tensor([4])))["next"]
+    assert bool(out["terminated"]) and float(out["observation"][0, -1]) == 0.0
+
+
+def test_partial_reset_leaves_other_seeds_alone():
+    env = LiquidationEnv([0, 1])
+    td = env.reset()
+    for _ in range(3):
+        td = env.step_mdp(env.step(td.set("action", torch.full((2, 1), 0.1, dtype=D))))
+    before = td["observation"][1].clone()
+    out = env.reset(td.clone().set("_reset", torch.tensor([[True], [False]])))
+    assert out["observation"][0, -2:].tolist() == [1.0, 1.0] and not out["observation"][0, :6].any()
+    assert torch.equal(out["observation"][1], before)
+    assert env.t.tolist() == [0, 3] and env.episode.tolist() == [1, 0]
+
+
+def unimpacted_prices(agent, seeds, episodes=3):
+    """Per (seed, episode): the price path with the agent's own permanent impact added
+    back, S_k + gamma (X - x_k), i.e. S_0 plus the noise alone."""
+    config = resolve_config(env="liquidation", agent=agent, seeds=seeds, episodes=episodes)
+    env, pol = build(config)
+    paths = {}
+
+    def record(col):
+        for i, s in enumerate(env.seeds):
+            key = (s, int(env.episode[i]))
+            if int(env.t[i]) > 0:  # a step of this episode happened (the env resets only after)
+                paths.setdefault(key, []).append(float(env.price[i] + env.model.gamma * (X - env.x[i])))
+        return False
+    OnlineCollector(env, pol, episodes, progress=False).run(after_step=record)
+    return paths
+
+
+def test_common_random_numbers_across_agents_and_batches():
+    """ac-optimal and TWAP (different trades, different episode lengths) see the same price
+    noise for the same (seed, episode), alone or in a batch."""
+    a = unimpacted_prices("ac-optimal", [0, 1])
+    b = unimpacted_prices("twap", [1])
+    shared = [k for k in b if k in a]
+    assert {k[1] for k in shared} == {0, 1, 2}
+    for k in shared:
+        n = min(len(a[k]), len(b[k]))
+        assert n >= 50 and a[k][:n] == pytest.approx(b[k][:n], abs=1e-9)
+    assert a[(0, 1)][:10] != pytest.approx(a[(1, 1)][:10])  # seeds differ
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(shares=-5), "shares"), (dict(trades=0), "trades"), (dict(lam=-1e-6), "lam"),
+    (dict(horizon=0), "horizon"), (dict(action_levels=1), "action_levels"),
+    (dict(level_noise=0.2), "level_noise"), (dict(daily_volume=float("nan")), "daily_volume")])
+def test_impossible_settings_are_refused(bad, match):
+    with pytest.raises(ValueError, match=match):
+        resolve_config(env="liquidation", agent="ac-optimal", **bad)
+
+
+def test_schedules_refuse_discrete_actions_and_other_envs():
+    with pytest.raises(ValueError, match="action_levels=0"):
+        resolve_config(env="liquidation", agent="ac-optimal", action_levels=21)
+    with pytest.raises(ValueError, match="liquidation"):
+        resolve_config(env="square", agent="twap", preset="shaped")
+
+
+def test_ac_optimal_over_400_episodes_matches_E_and_U():
+    """Mean shortfall and ac_cost within three standard errors of E* and U*; TWAP's cost is
+    about 4.3x U* while its shortfall is about half (SPEC 3.2)."""
+    opt = run_experiment(resolve_config(env="liquidation", agent="ac-optimal", seeds=8, episodes=50), progress=False)
+    assert len(opt) == 400
+    for col, ref in (("implementation_shortfall", 477_712.60), ("ac_cost", U_STAR)):
+        se = opt[col].std() / math.sqrt(len(opt))
+        assert abs(opt[col].mean() - ref) < 3 * se, (col, opt[col].mean(), ref, se)
+    assert (opt["return"] * -1e6 - opt["ac_cost"]).abs().max() < 1e-3  # return = -ac_cost / scale
+    twap = run_experiment(resolve_config(env="liquidation", agent="twap", seeds=8, episodes=50), progress=False)
+    assert twap.ac_cost.mean() / opt.ac_cost.mean() == pytest.approx(4.3, abs=0.2)
+    assert twap.implementation_shortfall.mean() < 0.7 * opt.implementation_shortfall.mean()
