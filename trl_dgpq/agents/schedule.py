@@ -1,0 +1,89 @@
+"""Scripted liquidation schedules, the yardsticks of the liquidation env: the
+Almgren-Chriss optimum (``ac-optimal``) and TWAP (``twap``, equal trades).
+
+Each reads the trade count from the observation (trades left / N) and sells the
+schedule's fraction of the shares still held, so rounding to whole shares never
+accumulates. Non-learning agents: ``observe`` does nothing and they hold no state.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from ..almgren_chriss import ACModel
+from ..envs.liquidation import LiquidationEnv
+
+
+@dataclass
+class ScheduleConfig:
+    """A fixed liquidation schedule (no settings)."""
+
+    def check(self) -> "ScheduleConfig":
+        return self
+
+
+class SchedulePolicy:
+    """Sells ``fractions[k]`` of the remaining shares at trade k + 1 (a tensor (N,))."""
+
+    Config = ScheduleConfig
+    name = "schedule"
+
+    def __init__(self, fractions: torch.Tensor, trades: int):
+        self.fractions, self.trades = fractions.to(torch.float64), trades
+
+    @classmethod
+    def resolve_config(cls, cfg, env):
+        if not isinstance(env, LiquidationEnv):
+            raise ValueError(f"{cls.name} trades a liquidation schedule: use --env liquidation")
+        if env.cfg.action_levels:
+            raise ValueError(f"{cls.name} sells exact fractions: set action_levels=0 (continuous actions)")
+        return cfg.check()
+
+    @classmethod
+    def make(cls, cfg, env, seeds):
+        cls.resolve_config(cfg, env)
+        return cls(cls.schedule(env.model), env.cfg.trades)
+
+    @staticmethod
+    def schedule(model: ACModel) -> torch.Tensor:
+        raise NotImplementedError
+
+    @staticmethod
+    def memory_bytes(cfg, env, num_seeds: int) -> int:
+        return 0
+
+    def act(self, td) -> torch.Tensor:
+        left = td.get("observation")[:, -2].to(torch.float64)              # trades left / N
+        k = (self.trades - torch.round(left * self.trades)).long().clamp(0, self.trades - 1)
+        return self.fractions[k][:, None]
+
+    def observe(self, td, active=None) -> None:
+        pass
+
+    def episode_stats(self) -> dict:
+        return {}
+
+    def state_dict(self) -> dict:
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        pass
+
+
+class ACOptimalPolicy(SchedulePolicy):
+    """The Almgren-Chriss optimal schedule x_j = sinh(kappa (T - t_j)) / sinh(kappa T) X."""
+    name = "ac-optimal"
+
+    @staticmethod
+    def schedule(model: ACModel) -> torch.Tensor:
+        return model.sell_fractions()
+
+
+class TWAPPolicy(SchedulePolicy):
+    """Time-weighted average price: X / N shares per trade (1 / (N - k + 1) of the rest)."""
+    name = "twap"
+
+    @staticmethod
+    def schedule(model: ACModel) -> torch.Tensor:
+        return 1.0 / torch.arange(model.trades, 0, -1, dtype=torch.float64)
