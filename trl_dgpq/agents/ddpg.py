@@ -1,0 +1,228 @@
+"""DDPG (Lillicrap et al. 2016) as the course had it (SPEC 3.2), assembled from TorchRL:
+``DDPGLoss`` (TD(0) targets from target networks), ``SoftUpdate``, ``ReplayBuffer``
+with ``LazyTensorStorage``, ``OrnsteinUhlenbeckProcessModule``, ``Actor`` (an ``MLP``
+then ``TanhModule`` onto the action box) and ``ValueOperator``.
+
+One learner per seed. Why not one learner whose parameters carry a seed dimension
+(``torch.vmap``): TorchRL's losses, replay buffers and OU module draw from torch's
+global generator and hold one set of parameters, so stacking would mean
+re-implementing them functionally; per-seed learners keep every part stock and make
+"seed i alone = seed i in a batch" hold by construction. The price is a Python loop
+over seeds (S small networks instead of one batched one). Each learner owns a
+torch generator state: it is swapped into torch's global generator (``fork_rng``)
+around everything the learner does, so initial weights, replay sampling and OU
+noise form a per-seed stream, saved with the learner.
+
+Per step, for each active seed: act (actor + OU noise, reset at each episode's
+start), store the transition, and once the buffer holds a batch, one gradient step
+on the critic (lr ``critic_lr``) and the actor (``actor_lr``) and a soft update of
+both target networks.
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+from dataclasses import dataclass
+from typing import Sequence, Tuple
+
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torch import nn
+from torchrl.data import Bounded, LazyTensorStorage, ReplayBuffer
+from torchrl.modules import MLP, OrnsteinUhlenbeckProcessModule, TanhModule, ValueOperator
+from torchrl.objectives import DDPGLoss, SoftUpdate
+
+from ..config import setting
+from ..envs.base import observation_dim
+from ..rng import LEARNER_STREAM, SeedStreams
+
+
+@dataclass
+class DDPGConfig:
+    """DDPG (SPEC 3.2: the course's sizes and hyperparameters)."""
+    gamma: float = setting(0.99, "discount gamma")
+    actor_hidden: Tuple[int, ...] = setting((24, 48), "actor hidden widths (ReLU), then tanh onto the action box")
+    critic_hidden: Tuple[int, int] = setting((24, 48), "critic: state -> first width, concat action -> second -> 1")
+    actor_lr: float = setting(1e-4, "actor Adam learning rate")
+    critic_lr: float = setting(1e-3, "critic Adam learning rate")
+    target_update: float = setting(1e-3, "soft target update weight tau")
+    buffer_size: int = setting(10_000, "replay buffer capacity (transitions per seed)")
+    batch_size: int = setting(128, "minibatch; learning starts once the buffer holds this many")
+    ou_theta: float = setting(0.15, "OU exploration noise theta")
+    ou_sigma: float = setting(0.2, "OU exploration noise sigma")
+    ou_dt: float = setting(1.0, "OU time step (1: x += theta (mu - x) + sigma N(0, 1))")
+
+    def check(self) -> "DDPGConfig":
+        if not (0 <= self.gamma <= 1):
+            raise ValueError(f"gamma must be in [0, 1], got {self.gamma}")
+        if not self.actor_hidden or min(self.actor_hidden) < 1:
+            raise ValueError(f"actor_hidden must be positive widths, got {list(self.actor_hidden)}")
+        if len(self.critic_hidden) != 2 or min(self.critic_hidden) < 1:
+            raise ValueError(f"critic_hidden must be two positive widths, got {list(self.critic_hidden)}")
+        for name in ("actor_lr", "critic_lr", "target_update", "ou_dt"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be > 0, got {v}")
+        if self.target_update > 1:
+            raise ValueError(f"target_update must be in (0, 1], got {self.target_update}")
+        if self.buffer_size < self.batch_size or self.batch_size < 1:
+            raise ValueError(f"need 1 <= batch_size <= buffer_size, got {self.batch_size} and {self.buffer_size}")
+        if self.ou_theta < 0 or self.ou_sigma < 0:
+            raise ValueError("ou_theta and ou_sigma must be >= 0")
+        return self
+
+
+class Critic(nn.Module):
+    """Q(s, a): state -> hidden[0] (ReLU), concatenate the action -> hidden[1] (ReLU) -> 1."""
+
+    def __init__(self, obs_dim: int, act_dim: int, hidden: Tuple[int, int]):
+        super().__init__()
+        self.state = nn.Sequential(nn.Linear(obs_dim, hidden[0]), nn.ReLU())
+        self.head = MLP(in_features=hidden[0] + act_dim, out_features=1, num_cells=[hidden[1]],
+                        activation_class=nn.ReLU)
+
+    def forward(self, observation, action):
+        return self.head(torch.cat([self.state(observation), action], -1))
+
+
+def action_box(env) -> Bounded:
+    spec = env.action_spec
+    if not isinstance(spec, Bounded):
+        raise ValueError(f"ddpg needs a continuous (Bounded) action spec; this env's is {type(spec).__name__}"
+                         + (" (liquidation: set action_levels=0)" if hasattr(env.cfg, "action_levels") else ""))
+    return spec
+
+
+class Learner:
+    """One seed's DDPG: networks, loss, optimisers, replay buffer, OU state and generator."""
+
+    def __init__(self, cfg: DDPGConfig, obs_dim: int, box: Bounded, torch_seed: int):
+        low, high = box.space.low[0].float(), box.space.high[0].float()
+        act_dim = low.numel()
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(torch_seed)
+            net = MLP(in_features=obs_dim, out_features=act_dim, num_cells=list(cfg.actor_hidden),
+                      activation_class=nn.ReLU)
+            self.actor = TensorDictSequential(
+                TensorDictModule(net, in_keys=["observation"], out_keys=["action_raw"]),
+                TanhModule(in_keys=["action_raw"], out_keys=["action"], low=low, high=high))
+            critic = ValueOperator(Critic(obs_dim, act_dim, cfg.critic_hidden), in_keys=["observation", "action"])
+            self.loss = DDPGLoss(self.actor, critic, delay_actor=True, delay_value=True)
+            self.generator_state = torch.get_rng_state()
+        self.loss.make_value_estimator(gamma=cfg.gamma)
+        self.target = SoftUpdate(self.loss, tau=cfg.target_update)
+        self.actor_optim = torch.optim.Adam(self.loss.actor_network_params.values(True, True), lr=cfg.actor_lr)
+        self.critic_optim = torch.optim.Adam(self.loss.value_network_params.values(True, True), lr=cfg.critic_lr)
+        self.buffer = ReplayBuffer(storage=LazyTensorStorage(cfg.buffer_size), batch_size=cfg.batch_size)
+        self.ou = OrnsteinUhlenbeckProcessModule(
+            Bounded(low, high, shape=(act_dim,)), theta=cfg.ou_theta, sigma=cfg.ou_sigma, dt=cfg.ou_dt,
+            eps_init=1.0, eps_end=1.0)
+        self.noise = TensorDict({"_ou_prev_noise": torch.zeros(1, act_dim), "_ou_steps": torch.zeros(1, dtype=torch.long)},
+                                batch_size=[1])
+        self.batch_size, self.updates = cfg.batch_size, 0
+
+    @contextlib.contextmanager
+    def own_generator(self):
+        """Torch's global generator is this learner's for the duration (and is put back after)."""
+        with torch.random.fork_rng(devices=[]):
+            torch.set_rng_state(self.generator_state)
+            try:
+                yield
+            finally:
+                self.generator_state = torch.get_rng_state()
+
+    def act(self, obs: torch.Tensor, new_episode: bool) -> torch.Tensor:
+        """Actor + OU noise for one observation (1, obs_dim)."""
+        td = TensorDict({"observation": obs, "is_init": torch.tensor([[new_episode]])}, batch_size=[1])
+        td.update(self.noise)
+        with self.own_generator(), torch.no_grad():
+            self.ou(self.actor(td))
+        self.noise = td.select("_ou_prev_noise", "_ou_steps").clone()
+        return td.get("action")
+
+    def learn(self, transition: TensorDict) -> None:
+        with self.own_generator():
+            self.buffer.extend(transition)
+            if len(self.buffer) < self.batch_size:
+                return
+            losses = self.loss(self.buffer.sample())
+            self.actor_optim.zero_grad()
+            self.critic_optim.zero_grad()
+            (losses["loss_actor"] + losses["loss_value"]).backward()
+            self.actor_optim.step()
+            self.critic_optim.step()
+            self.target.step()
+            self.updates += 1
+
+    def state_dict(self) -> dict:
+        return {"loss": self.loss.state_dict(), "actor_optim": self.actor_optim.state_dict(),
+                "critic_optim": self.critic_optim.state_dict(), "buffer": self.buffer.state_dict(),
+                "noise": self.noise.to_dict(), "generator": self.generator_state.clone(), "updates": self.updates}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.loss.load_state_dict(state["loss"])
+        self.actor_optim.load_state_dict(state["actor_optim"])
+        self.critic_optim.load_state_dict(state["critic_optim"])
+        self.buffer.load_state_dict(state["buffer"])
+        self.noise = TensorDict(state["noise"], batch_size=[1])
+        self.generator_state = state["generator"].clone()
+        self.updates = int(state["updates"])
+
+
+class DDPG:
+    """S independent DDPG learners behind the runner's agent interface."""
+
+    Config = DDPGConfig
+
+    def __init__(self, cfg: DDPGConfig, seeds: Sequence[int], obs_dim: int, box: Bounded):
+        torch_seeds = SeedStreams(seeds, LEARNER_STREAM).seed_for_torch()
+        self.learners = [Learner(cfg, obs_dim, box, s) for s in torch_seeds]
+        self.new_episode = torch.ones(len(seeds), dtype=torch.bool)
+
+    @classmethod
+    def resolve_config(cls, cfg: DDPGConfig, env) -> DDPGConfig:
+        action_box(env)
+        return cfg.check()
+
+    @classmethod
+    def make(cls, cfg: DDPGConfig, env, seeds):
+        return cls(cfg.check(), seeds, observation_dim(env), action_box(env))
+
+    @staticmethod
+    def memory_bytes(cfg: DDPGConfig, env, num_seeds: int) -> int:
+        """The replay buffers when full (observation, next observation, action, flags)."""
+        dim, act = observation_dim(env), int(action_box(env).shape[-1])
+        return num_seeds * cfg.buffer_size * 4 * (2 * dim + act + 4)
+
+    def act(self, td) -> torch.Tensor:
+        obs = td.get("observation").to(torch.float32)
+        actions = [learner.act(obs[i:i + 1], bool(self.new_episode[i])) for i, learner in enumerate(self.learners)]
+        return torch.cat(actions).to(torch.float64)
+
+    def observe(self, td, active=None) -> None:
+        nxt = td.get("next")
+        S = len(self.learners)
+        active = torch.ones(S, dtype=torch.bool) if active is None else active
+        f32 = lambda t: t.to(torch.float32)  # noqa: E731
+        batch = TensorDict({
+            "observation": f32(td.get("observation")), "action": f32(td.get("action")),
+            "next": {"observation": f32(nxt.get("observation")), "reward": f32(nxt.get("reward")),
+                     "done": nxt.get("done"), "terminated": nxt.get("terminated")}}, batch_size=[S])
+        for i in active.nonzero()[:, 0].tolist():
+            self.learners[i].learn(batch[i:i + 1])
+        self.new_episode = nxt.get("done").reshape(S).clone()
+
+    def episode_stats(self) -> dict:
+        return {"updates": torch.tensor([learner.updates for learner in self.learners])}
+
+    def state_dict(self) -> dict:
+        return {"learners": [learner.state_dict() for learner in self.learners],
+                "new_episode": self.new_episode.clone()}
+
+    def load_state_dict(self, state: dict) -> None:
+        if len(state["learners"]) != len(self.learners):
+            raise ValueError(f"ddpg state is for {len(state['learners'])} seeds, not {len(self.learners)}")
+        for learner, s in zip(self.learners, state["learners"]):
+            learner.load_state_dict(s)
+        self.new_episode.copy_(state["new_episode"])
