@@ -20,7 +20,7 @@ import pandas as pd
 from trl_dgpq.agents import AGENTS, make_agent
 from trl_dgpq.config import find_leaf, from_dict, leaves, setting, to_dict, with_overrides
 from trl_dgpq.envs import ENVS, make_env
-from trl_dgpq.presets import preset_overrides
+from trl_dgpq.presets import PRESETS, preset_overrides
 
 from .online import OnlineCollector
 
@@ -129,6 +129,8 @@ def resolve_config(settings: Optional[Dict[str, Any]] = None, base: Optional[dic
         env_cfg = from_dict(env_cls.Config, base["env"])
         agent_cfg = from_dict(agent_cls.Config, base["agent"])
     else:
+        if (run.env, run.agent) not in PRESETS:  # say why they do not go together, if the agent knows
+            agent_cls.resolve_config(agent_cls.Config(), env_cls([0], env_cls.Config()))
         name, preset = preset_overrides(run.env, run.agent, run.preset)
         run = with_overrides(run, {"preset": name})
         env_cfg = with_overrides(env_cls.Config(), preset["env"])

@@ -9,10 +9,20 @@ Writes into the (first) run folder, or --out:
     steps_per_episode.png   steps to goal per episode (seed report Fig. 2)
     time_per_step.png       CPU time per step per episode (seed report Fig. 3)
 Each curve is the median across seeds with the inter-quartile band.
+
+Liquidation runs (all runs of a comparison, e.g. runs/liq/*) instead give
+    liquidation_cost.png    mean implementation shortfall and mean ac_cost per block of
+                            episodes (seed report Fig. 6), one panel per discount gamma,
+                            the AC optimum's E* and U* as reference lines
+    liquidation_time.png    wall time per episode per seed (seed report Fig. 7)
+    comparison.md           over the last --last episodes of each run: mean ac_cost and
+                            shortfall, and their ratio to an ac-optimal run of the
+                            comparison on the same (seed, episode) price paths
 """
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -62,12 +72,92 @@ def plot_runs(runs, labels, out: Path, logy_steps: bool = True) -> list:
     return written
 
 
+def run_info(run) -> dict:
+    """label parts of a run from its config.json: agent, preset, gamma (None for schedules)."""
+    cfg = json.loads((Path(run) / "config.json").read_text())
+    return dict(env=cfg["run"]["env"], agent=cfg["run"]["agent"], preset=cfg["run"]["preset"],
+                gamma=cfg["agent"].get("gamma"), env_cfg=cfg["env"])
+
+
+def liquidation_figures(runs, labels, out: Path, block: int, last: int) -> list:
+    from trl_dgpq.almgren_chriss import ACModel
+    from trl_dgpq.envs import LiquidationConfig
+    from trl_dgpq.config import from_dict
+    infos = [run_info(r) for r in runs]
+    frames = [pd.read_csv(Path(r) / "episodes.csv") for r in runs]
+    model = ACModel.from_config(from_dict(LiquidationConfig, infos[0]["env_cfg"]))
+    gammas = sorted({i["gamma"] for i in infos if i["gamma"] is not None}) or [None]
+    written = []
+    panels = [("implementation_shortfall", "mean implementation shortfall ($)", model.expected_shortfall(), "E*"),
+              ("ac_cost", "mean ac_cost = shortfall + risk term ($)", model.utility(), "U*")]
+    fig, axes = plt.subplots(2, len(gammas), figsize=(5.2 * len(gammas), 7.0), squeeze=False, sharex=True)
+    tfig, taxes = plt.subplots(1, len(gammas), figsize=(5.2 * len(gammas), 3.6), squeeze=False)
+    for j, gamma in enumerate(gammas):
+        for df, label, info in zip(frames, labels, infos):
+            if info["gamma"] not in (None, gamma):
+                continue
+            blk = (df["episode"] - 1) // block
+            x = (blk.groupby(blk).first() + 1) * block
+            for row, (col, ylabel, ref, name) in enumerate(panels):
+                axes[row, j].plot(x, df[col].groupby(blk).mean(), label=label, lw=1.2)
+            taxes[0, j].plot(x, df["wall_s"].groupby(blk).mean() * 1e3, label=label, lw=1.2)
+        for row, (col, ylabel, ref, name) in enumerate(panels):
+            ax = axes[row, j]
+            ax.axhline(ref, color="k", ls="--", lw=1, label=f"AC optimum {name} = ${ref:,.0f}")
+            ax.set_yscale("log")
+            ax.set_ylabel(ylabel)
+            ax.grid(alpha=0.3, which="both")
+            ax.set_title(f"gamma = {gamma}" if gamma is not None else "")
+        axes[1, j].set_xlabel(f"episode (mean of each block of {block})")
+        axes[0, j].legend(fontsize=7)
+        taxes[0, j].set_title(f"gamma = {gamma}" if gamma is not None else "")
+        taxes[0, j].set_xlabel("episode")
+        taxes[0, j].set_ylabel("wall ms per episode, per seed")
+        taxes[0, j].set_yscale("log")
+        taxes[0, j].grid(alpha=0.3, which="both")
+        taxes[0, j].legend(fontsize=7)
+    for f, name in ((fig, "liquidation_cost.png"), (tfig, "liquidation_time.png")):
+        f.tight_layout()
+        f.savefig(out / name, dpi=120)
+        plt.close(f)
+        written.append(out / name)
+    path = out / "comparison.md"
+    path.write_text(comparison_table(frames, labels, infos, last))
+    written.append(path)
+    return written
+
+
+def comparison_table(frames, labels, infos, last: int) -> str:
+    """Markdown: the last ``last`` episodes of each run, costs as ratios to the ac-optimal run
+    on the same (seed, episode) pairs (common random numbers make the pairs comparable)."""
+    ref = next((df for df, i in zip(frames, infos) if i["agent"] == "ac-optimal"), None)
+    lines = ["| run | gamma | seeds x episodes | mean ac_cost ($) | ac_cost / optimum | mean shortfall ($) "
+             "| shortfall / optimum | s per episode per seed |", "|---|---|---|---|---|---|---|---|"]
+    for df, label, info in zip(frames, labels, infos):
+        tail = df[df["episode"] > df["episode"].max() - last]
+        ratios = ["–", "–"]
+        if ref is not None:
+            pairs = tail.merge(ref, on=["seed", "episode"], suffixes=("", "_ref"))
+            if len(pairs):
+                ratios = [f"{pairs[c].mean() / pairs[c + '_ref'].mean():.3f}"
+                          for c in ("ac_cost", "implementation_shortfall")]
+        gamma = "–" if info["gamma"] is None else f"{info['gamma']:g}"
+        lines.append(f"| {label} | {gamma} | {df.seed.nunique()} x {df.episode.max()} | {tail.ac_cost.mean():,.0f} "
+                     f"| {ratios[0]} | {tail.implementation_shortfall.mean():,.0f} | {ratios[1]} "
+                     f"| {df.wall_s.mean():.3g} |")
+    note = (f"\nLast {last} episodes of each run. Ratios: mean over the (seed, episode) pairs the run shares "
+            "with the ac-optimal run, divided by ac-optimal's mean over the same pairs (same price paths).\n")
+    return "\n".join(lines) + "\n" + note
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("runs", nargs="*", help="run folders holding episodes.csv (default: newest under runs/)")
     p.add_argument("--labels", nargs="+", default=None)
     p.add_argument("--out", default=None, help="folder for the PNGs (default: the first run folder)")
     p.add_argument("--linear", action="store_true", help="linear y axis for steps")
+    p.add_argument("--block", type=int, default=100, help="liquidation: episodes per plotted mean")
+    p.add_argument("--last", type=int, default=1000, help="liquidation: episodes at the end that the table uses")
     args = p.parse_args(argv)
     if not args.runs:
         found = sorted(Path("runs").glob("*/episodes.csv"), key=lambda f: f.stat().st_mtime)
@@ -82,7 +172,11 @@ def main(argv=None) -> int:
         p.error("give one label per run")
     out = Path(args.out or args.runs[0])
     out.mkdir(parents=True, exist_ok=True)
-    for path in plot_runs(args.runs, labels, out, logy_steps=not args.linear):
+    if all((Path(r) / "config.json").is_file() and run_info(r)["env"] == "liquidation" for r in args.runs):
+        written = liquidation_figures(args.runs, labels, out, args.block, args.last)
+    else:
+        written = plot_runs(args.runs, labels, out, logy_steps=not args.linear)
+    for path in written:
         print(f"wrote {path}")
     return 0
 

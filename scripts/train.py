@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 
 from trl_dgpq.collectors import runner
@@ -72,6 +73,7 @@ def given_settings(args, parser) -> dict:
 
 
 def main(argv=None) -> int:
+    logging.getLogger("torchrl").setLevel(logging.WARNING)  # one INFO line per replay buffer otherwise
     try:
         return _main(argv)
     except KeyboardInterrupt:  # Ctrl-C before the run started (a started run checkpoints instead)
@@ -125,6 +127,10 @@ def summarise(df, config) -> None:
         line += f", episodes 3+: {late.steps.median():g}"
     print(f"{line}; terminated in {df.terminated.mean():.0%} of episodes; "
           f"{df.wall_s.sum() / df.steps.sum() * 1e6:.0f} us per seed-step")
+    if "ac_cost" in df:  # liquidation: the yardstick is the AC optimum's U*
+        last = df[df.episode > df.episode.max() - 100]
+        print(f"last {last.episode.nunique()} episodes: mean ac_cost ${last.ac_cost.mean():,.0f}, "
+              f"mean implementation shortfall ${last.implementation_shortfall.mean():,.0f}")
 
 
 if __name__ == "__main__":

@@ -223,3 +223,25 @@ def test_section5_covering_from_the_env_state_box():
     assert cfg.resolve(4, state_box=([0.0, 0.0], [1.0, 1.0])).sigma_tol2 == pytest.approx(2.6821087e-4, rel=1e-6)
     with pytest.raises(ValueError, match="state box"):
         config(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0).resolve(4)
+
+
+def test_state_scale_weights_dimensions_and_drops_zeros():
+    """state_scale (0, 2) on the square: Q̂ and the GPs see 2 * y only, so two states that
+    differ only in x are one state, and distances in y double."""
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    env, agent = build(resolve_config(seeds=[0], state_scale=(0.0, 2.0)))
+    assert agent.qhat.s.shape[-1] == 1
+    obs = torch.tensor([[0.3, 0.25]], dtype=torch.float64)
+    assert agent.features(obs).tolist() == [[0.5]]
+    agent.update_qhat(agent.features(obs), torch.tensor([1]), torch.tensor([0.0], dtype=torch.float64),
+                      torch.tensor([True]))
+    q = agent.qhat_values(agent.features(torch.tensor([[0.9, 0.35]], dtype=torch.float64)))
+    assert float(q[0, 1]) == pytest.approx(0.0 + 1.0 * 2 * 0.1)  # L_Q * |2 * 0.35 - 2 * 0.25|
+
+
+@pytest.mark.parametrize("scale, match", [((1.0, 2.0, 3.0), "1 or 2 weights"), ((0.0, 0.0), "not all 0"),
+                                          ((-1.0,), "state_scale")])
+def test_state_scale_refuses_bad_weights(scale, match):
+    from trl_dgpq.collectors.experiment import resolve_config
+    with pytest.raises(ValueError, match=match):
+        resolve_config(seeds=[0], state_scale=scale)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Optional, Sequence
+from typing import Optional, Sequence, Tuple
 
 import torch
 
@@ -55,6 +55,8 @@ class DGPQConfig:
                                    "metric) or unit-square (the seed report's ceil(1/(pi r^2)))", choices=COVERINGS)
     metric: str = setting("l1", "state metric d of Q̂", choices=tuple(METRICS))
     qhat_capacity: int = setting(64, "initial Q̂ storage, pairs per seed and action (doubles when full)")
+    state_scale: Tuple[float, ...] = setting((), "weights multiplying the observation's dimensions before "
+                                                 "Q̂ and the GPs see them; 0 drops a dimension (empty: as is)")
     gp: GPConfig = nested(GPConfig)
 
     @staticmethod
@@ -78,6 +80,9 @@ class DGPQConfig:
             bad(f"v_max must be finite, got {self.v_max}")
         if self.qhat_capacity < 1:
             bad(f"qhat_capacity must be a positive integer, got {self.qhat_capacity}")
+        if not all(finite(w) and w >= 0 for w in self.state_scale) or (
+                self.state_scale and not any(self.state_scale)):
+            bad(f"state_scale must be finite weights >= 0, not all 0, got {list(self.state_scale)}")
         self.gp.check()
         if self.sigma_tol2 is None or self.eps1 is None:
             if None in (self.eps, self.delta, self.r_max):
@@ -114,8 +119,10 @@ class DGPQ:
     COUNTERS = ("since_fit", "kernel_fits", "qhat_updates", "gp_adds")
 
     def __init__(self, cfg: DGPQConfig, seeds: Sequence[int], state_dim: int, num_actions: int,
-                 kernel=None, device=None, state_box=None):
+                 kernel=None, device=None, state_box=None, weights: Optional[torch.Tensor] = None):
         self.cfg = cfg.resolve(num_actions, state_box)
+        self.weights = weights      # state_scale (None: observations as they are); see features()
+        self._features = []         # [(observation, features)], the last two
         self.S, self.A = len(seeds), num_actions
         self.qhat = LipschitzQ(self.S, num_actions, state_dim, cfg.lipschitz, cfg.v_max, cfg.metric,
                                capacity=cfg.qhat_capacity, device=device)
@@ -133,31 +140,69 @@ class DGPQ:
     # ------------------------------------------------------------ runner API
     @classmethod
     def resolve_config(cls, cfg: DGPQConfig, env) -> DGPQConfig:
+        cls._weights(cfg, env)
         return cfg.resolve(discrete_actions(env, "dgpq"), cls._state_box(cfg, env))
 
     @classmethod
     def make(cls, cfg: DGPQConfig, env, seeds: Sequence[int]) -> "DGPQ":
-        return cls(cfg, seeds, observation_dim(env), discrete_actions(env, "dgpq"), device=env.device,
-                   state_box=cls._state_box(cfg, env))
+        return cls(cfg, seeds, cls._state_dim(cfg, env), discrete_actions(env, "dgpq"), device=env.device,
+                   state_box=cls._state_box(cfg, env), weights=cls._weights(cfg, env))
 
     @staticmethod
-    def _state_box(cfg: DGPQConfig, env):
-        needed = cfg.covering == "env" and (cfg.sigma_tol2 is None or cfg.eps1 is None)
-        return env.state_box() if needed else None
+    def _weights(cfg: DGPQConfig, env) -> Optional[torch.Tensor]:
+        """The state_scale weights (None: observations as they are)."""
+        if not cfg.state_scale:
+            return None
+        dim = observation_dim(env)
+        if len(cfg.state_scale) not in (1, dim):
+            raise ValueError(f"state_scale needs 1 or {dim} weights for this env, got {len(cfg.state_scale)}")
+        return torch.tensor(cfg.state_scale, dtype=torch.float64, device=env.device).expand(dim)
 
-    @staticmethod
-    def memory_bytes(cfg: DGPQConfig, env, num_seeds: int) -> int:
+    @classmethod
+    def _state_dim(cls, cfg: DGPQConfig, env) -> int:
+        w = cls._weights(cfg, env)
+        return observation_dim(env) if w is None else int((w != 0).sum())
+
+    @classmethod
+    def _state_box(cls, cfg: DGPQConfig, env):
+        if not (cfg.covering == "env" and (cfg.sigma_tol2 is None or cfg.eps1 is None)):
+            return None
+        low, high = env.state_box()
+        w = cls._weights(cfg, env)
+        if w is None:
+            return low, high
+        keep = [i for i in range(len(low)) if w[i] != 0]
+        return [low[i] * float(w[i]) for i in keep], [high[i] * float(w[i]) for i in keep]
+
+    @classmethod
+    def memory_bytes(cls, cfg: DGPQConfig, env, num_seeds: int) -> int:
         """Storage at the start (GPs and Q̂ of every seed and action)."""
-        A, dim = discrete_actions(env, "dgpq"), observation_dim(env)
+        A, dim = discrete_actions(env, "dgpq"), cls._state_dim(cfg, env)
         return num_seeds * A * (cfg.gp.bytes_per_gp(dim) + 8 * cfg.qhat_capacity * (dim + 1))
 
+    def features(self, obs: torch.Tensor) -> torch.Tensor:
+        """The state Q̂ and the GPs see: the observation (float64) times ``state_scale``,
+        zero-weight dimensions dropped."""
+        s = obs.to(torch.float64)
+        if self.weights is None:
+            return s
+        # Cached on the observation tensor: the qhat_values memo is keyed on the state tensor,
+        # and s_{t+1} of one step is s_t of the next.
+        for o, f in self._features:
+            if o is obs:
+                return f
+        f = (s * self.weights)[..., self.weights != 0]
+        self._features = [(obs, f)] + self._features[:1]
+        return f
+
     def act(self, td) -> torch.Tensor:
-        return self.select_action(td.get("observation"))
+        return self.select_action(self.features(td.get("observation")))
 
     def observe(self, td, active: Optional[torch.Tensor] = None) -> dict:
         nxt = td.get("next")
-        return self.learn(td.get("observation"), td.get("action"), nxt.get("reward").reshape(self.S),
-                          nxt.get("observation"), nxt.get("terminated").reshape(self.S), active)
+        return self.learn(self.features(td.get("observation")), td.get("action"),
+                          nxt.get("reward").reshape(self.S), self.features(nxt.get("observation")),
+                          nxt.get("terminated").reshape(self.S), active)
 
     def qhat_values(self, s: torch.Tensor) -> torch.Tensor:
         """Q̂_a(s) for all actions, (S, A). Memoised on the state tensor and Q̂'s version:

@@ -2,9 +2,11 @@
 ``Config`` dataclass, one line in ``AGENTS``, one entry in ``trl_dgpq/presets.py``."""
 from ..dgpq import DGPQ
 from .base import Agent
+from .ddpg import DDPG
 from .random import RandomAgent
+from .schedule import ACOptimalPolicy, TWAPPolicy
 
-AGENTS = {"dgpq": DGPQ, "random": RandomAgent}
+AGENTS = {"dgpq": DGPQ, "random": RandomAgent, "ac-optimal": ACOptimalPolicy, "twap": TWAPPolicy, "ddpg": DDPG}
 
 
 def make_agent(name: str, cfg, env, seeds):
