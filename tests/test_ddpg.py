@@ -59,3 +59,14 @@ def test_exploration_noise_restarts_each_episode():
 def test_refused_settings(settings, match):
     with pytest.raises(ValueError, match=match):
         resolve_config(agent="ddpg", **settings)
+
+
+def test_each_seed_draws_its_own_exploration_noise():
+    """The first OU draw of an episode (previous noise 0) is sigma * N(0, 1) from the
+    learner's own generator: different for different seeds, and the generators move."""
+    env, agent = build(resolve_config(seeds=[0, 1], **SMALL))
+    before = [learner.generator_state.clone() for learner in agent.learners]
+    agent.act(env.reset())
+    noise = [float(learner.noise["_ou_prev_noise"]) for learner in agent.learners]
+    assert noise[0] != noise[1]
+    assert all(not torch.equal(b, learner.generator_state) for b, learner in zip(before, agent.learners))

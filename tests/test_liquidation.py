@@ -187,3 +187,28 @@ def test_ac_optimal_over_400_episodes_matches_E_and_U():
     twap = run_experiment(resolve_config(env="liquidation", agent="twap", seeds=8, episodes=50), progress=False)
     assert twap.ac_cost.mean() / opt.ac_cost.mean() == pytest.approx(4.3, abs=0.2)
     assert twap.implementation_shortfall.mean() < 0.7 * opt.implementation_shortfall.mean()
+
+
+def test_ac_optimal_agent_without_noise_costs_E_star():
+    """The agent (not the model) through the runner: it reads the trade count from the
+    observation and must sell the schedule's fraction at the right trade."""
+    df = run_experiment(resolve_config(env="liquidation", agent="ac-optimal", seeds=[0], episodes=1,
+                                       price_noise=False), progress=False)
+    assert float(df.implementation_shortfall[0]) == pytest.approx(477_712.60, abs=50)
+
+
+@pytest.mark.parametrize("market", [{}, dict(trades=6, horizon=6.0, lam=2e-5)])
+def test_ac_optimal_agent_trades_the_optimal_list(market):
+    """Trade by trade, the agent sells the closed-form list (to whole shares); the short,
+    urgent market makes a schedule one trade off visible (its fractions vary)."""
+    env, agent = build(resolve_config(env="liquidation", agent="ac-optimal", seeds=[0], episodes=1, **market))
+    td, held, sold = env.reset(), X, []
+    while not sold or not bool(td["done"]):
+        td = env.step(td.set("action", agent.act(td)))
+        left = float(td["next", "observation"][0, -1]) * X
+        sold.append(held - left)
+        held, td = left, env.step_mdp(td)
+    expected = env.model.trade_list().tolist()
+    assert len(sold) >= len(expected) - 2 and sold == pytest.approx(expected[:len(sold)], abs=2)
+    if not market:
+        assert sold[0] == pytest.approx(217_778, abs=1)
