@@ -209,8 +209,14 @@ def run_experiment(config: dict, progress: bool = True, max_total_steps: Optiona
 def cli_leaves():
     """Every setting of RunConfig and of every registered env and agent config, by key
     (first one wins for help text): what ``scripts/train.py`` builds its flags from."""
+    return {key: owners[0][1] for key, owners in cli_owners().items()}
+
+
+def cli_owners():
+    """{key: [(config class name, leaf), ...]}: every config that has a setting of that name
+    (``--reward`` belongs to several envs, with different defaults and choices)."""
     out = {}
     for cls in [RunConfig] + [e.Config for e in ENVS.values()] + [a.Config for a in AGENTS.values()]:
         for leaf in leaves(cls):
-            out.setdefault(leaf.key, leaf)
+            out.setdefault(leaf.key, []).append((cls.__name__, leaf))
     return out

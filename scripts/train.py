@@ -26,7 +26,7 @@ import logging
 import sys
 
 from trl_dgpq.collectors import runner
-from trl_dgpq.collectors.experiment import cli_leaves, describe, resolve_config
+from trl_dgpq.collectors.experiment import cli_owners, describe, resolve_config
 from trl_dgpq.config import describe_default
 
 PROCESS_FLAGS = ("out", "resume", "overwrite", "config", "set", "no_progress")
@@ -49,11 +49,17 @@ def make_parser() -> argparse.ArgumentParser:
                    help="any setting, e.g. --set gp.noise_var=0.2 (repeatable)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     g = p.add_argument_group("settings (generated from the config dataclasses; default in brackets)")
-    for key, leaf in cli_leaves().items():
+    for key, owners in cli_owners().items():
         flag = "--" + key.replace("_", "-")
-        text = f"{leaf.help} [{describe_default(leaf)}]"
-        if leaf.choices:
-            text += f" {{{', '.join(leaf.choices)}}}"
+        leaf = owners[0][1]
+        if len(owners) == 1:
+            text = f"{leaf.help} [{describe_default(leaf)}]"
+            if leaf.choices:
+                text += f" {{{', '.join(leaf.choices)}}}"
+        else:  # the same name in several configs: each one's default (and choices)
+            text = leaf.help + " [" + "; ".join(
+                f"{name.removesuffix('Config')}: {describe_default(lf)}"
+                + (f" {{{', '.join(lf.choices)}}}" if lf.choices else "") for name, lf in owners) + "]"
         if leaf.type is bool:
             g.add_argument(flag, dest=key, action=argparse.BooleanOptionalAction, default=None, help=text)
         else:

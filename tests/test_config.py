@@ -147,3 +147,10 @@ def test_values_are_parsed_against_the_field_types():
             with_overrides(Outer(), {key: value})
     with pytest.raises(ValueError, match="unknown Outer settings"):
         from_dict(Outer, {"rate": 1.0, "speed": 2})
+
+
+def test_help_gives_each_configs_default_for_a_shared_flag():
+    """--gamma is DGPQ's (0.01) and DDPG's (0.99); --reward is the square's and liquidation's."""
+    text = " ".join(train.make_parser().format_help().split())
+    assert "[DGPQ: 0.01; DDPG: 0.99]" in text
+    assert "Square: shaped {shaped, paper}; Liquidation: shortfall {shortfall, utility-ratio}" in text
