@@ -72,12 +72,18 @@ class SeedStreams:
         self.counter = 0  # draws made so far; every seed of a batch draws in lock-step
         self._buf, self._buf_start, self._buf_shape = None, 0, None
 
+    def _draws(self, counter: torch.Tensor, n: int) -> torch.Tensor:
+        """n uniforms of draw ``counter`` (int64, shape (S, ...) broadcast with the seeds'
+        keys): ``(*counter.shape, n)``. The one place the numbers are made."""
+        idx = torch.arange(n, dtype=torch.int64, device=self.key.device)
+        key = self.key.view(-1, *([1] * (counter.dim() - 1)))
+        z = splitmix64((key + counter * self.MAX_PER_DRAW)[..., None] + idx)
+        return _lsr(z, 11).double() * 2.0 ** -53
+
     def _generate(self, first: int, draws: int, n: int) -> torch.Tensor:
         """Draws ``first .. first + draws - 1`` of n numbers each: (S, draws, n)."""
-        idx = torch.arange(n, dtype=torch.int64, device=self.key.device)
         ctr = torch.arange(first, first + draws, dtype=torch.int64, device=self.key.device)
-        z = splitmix64(self.key[:, None, None] + ctr[:, None] * self.MAX_PER_DRAW + idx)
-        return _lsr(z, 11).double() * 2.0 ** -53
+        return self._draws(ctr[None, :], n)
 
     def uniform(self, *shape: int) -> torch.Tensor:
         """Uniform [0, 1) float64 of shape ``(S, *shape)``: draw number ``counter`` of each
@@ -105,9 +111,7 @@ class SeedStreams:
         price path of episode ``index[i]``), so they never depend on what came before."""
         if n > self.MAX_PER_DRAW:
             raise ValueError(f"at most {self.MAX_PER_DRAW} numbers per draw")
-        idx = torch.arange(n, dtype=torch.int64, device=self.key.device)
-        z = splitmix64(self.key[:, None] + index.to(torch.int64)[:, None] * self.MAX_PER_DRAW + idx)
-        return _lsr(z, 11).double() * 2.0 ** -53
+        return self._draws(index.to(torch.int64).view(-1), n)
 
     def seed_for_torch(self) -> list:
         """One 63-bit integer per seed, derived from its key: a seed for ``torch.manual_seed``
