@@ -119,9 +119,9 @@ class DGPQ:
     COUNTERS = ("since_fit", "kernel_fits", "qhat_updates", "gp_adds")
 
     def __init__(self, cfg: DGPQConfig, seeds: Sequence[int], state_dim: int, num_actions: int,
-                 kernel=None, device=None, state_box=None, weights: Optional[torch.Tensor] = None):
+                 kernel=None, device=None, state_box=None, scale=None):
         self.cfg = cfg.resolve(num_actions, state_box)
-        self.weights = weights      # state_scale (None: observations as they are); see features()
+        self.scale = scale          # state_scale as (kept dimensions, their weights), or None; see features()
         self._features = []         # [(observation, features)], the last two
         self.S, self.A = len(seeds), num_actions
         self.qhat = LipschitzQ(self.S, num_actions, state_dim, cfg.lipschitz, cfg.v_max, cfg.metric,
@@ -140,39 +140,43 @@ class DGPQ:
     # ------------------------------------------------------------ runner API
     @classmethod
     def resolve_config(cls, cfg: DGPQConfig, env) -> DGPQConfig:
-        cls._weights(cfg, env)
+        cls._scale(cfg, env)
         return cfg.resolve(discrete_actions(env, "dgpq"), cls._state_box(cfg, env))
 
     @classmethod
     def make(cls, cfg: DGPQConfig, env, seeds: Sequence[int]) -> "DGPQ":
         return cls(cfg, seeds, cls._state_dim(cfg, env), discrete_actions(env, "dgpq"), device=env.device,
-                   state_box=cls._state_box(cfg, env), weights=cls._weights(cfg, env))
+                   state_box=cls._state_box(cfg, env), scale=cls._scale(cfg, env))
 
     @staticmethod
-    def _weights(cfg: DGPQConfig, env) -> Optional[torch.Tensor]:
-        """The state_scale weights (None: observations as they are)."""
+    def _scale(cfg: DGPQConfig, env):
+        """state_scale for this env as (indices of the dimensions kept, their weights), or
+        None when observations are used as they are."""
         if not cfg.state_scale:
             return None
         dim = observation_dim(env)
         if len(cfg.state_scale) not in (1, dim):
             raise ValueError(f"state_scale needs 1 or {dim} weights for this env, got {len(cfg.state_scale)}")
-        return torch.tensor(cfg.state_scale, dtype=torch.float64, device=env.device).expand(dim)
+        weights = list(cfg.state_scale) * (dim // len(cfg.state_scale))
+        keep = [i for i, w in enumerate(weights) if w != 0]
+        return (torch.tensor(keep, device=env.device),
+                torch.tensor([weights[i] for i in keep], dtype=torch.float64, device=env.device))
 
     @classmethod
     def _state_dim(cls, cfg: DGPQConfig, env) -> int:
-        w = cls._weights(cfg, env)
-        return observation_dim(env) if w is None else int((w != 0).sum())
+        scale = cls._scale(cfg, env)
+        return observation_dim(env) if scale is None else len(scale[0])
 
     @classmethod
     def _state_box(cls, cfg: DGPQConfig, env):
         if not (cfg.covering == "env" and (cfg.sigma_tol2 is None or cfg.eps1 is None)):
             return None
         low, high = env.state_box()
-        w = cls._weights(cfg, env)
-        if w is None:
+        scale = cls._scale(cfg, env)
+        if scale is None:
             return low, high
-        keep = [i for i in range(len(low)) if w[i] != 0]
-        return [low[i] * float(w[i]) for i in keep], [high[i] * float(w[i]) for i in keep]
+        keep, w = scale[0].tolist(), scale[1].tolist()
+        return [low[i] * wi for i, wi in zip(keep, w)], [high[i] * wi for i, wi in zip(keep, w)]
 
     @classmethod
     def memory_bytes(cls, cfg: DGPQConfig, env, num_seeds: int) -> int:
@@ -183,15 +187,15 @@ class DGPQ:
     def features(self, obs: torch.Tensor) -> torch.Tensor:
         """The state Q̂ and the GPs see: the observation (float64) times ``state_scale``,
         zero-weight dimensions dropped."""
-        s = obs.to(torch.float64)
-        if self.weights is None:
-            return s
+        if self.scale is None:
+            return obs.to(torch.float64)
         # Cached on the observation tensor: the qhat_values memo is keyed on the state tensor,
         # and s_{t+1} of one step is s_t of the next.
         for o, f in self._features:
             if o is obs:
                 return f
-        f = (s * self.weights)[..., self.weights != 0]
+        keep, weights = self.scale
+        f = obs.to(torch.float64)[..., keep] * weights
         self._features = [(obs, f)] + self._features[:1]
         return f
 
