@@ -100,8 +100,8 @@ class Learner:
     def __init__(self, cfg: DDPGConfig, obs_dim: int, box: Bounded, torch_seed: int):
         low, high = box.space.low[0].float(), box.space.high[0].float()
         act_dim = low.numel()
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(torch_seed)
+        self.generator_state = torch.Generator().manual_seed(torch_seed).get_state()
+        with self.own_generator():  # initial weights from this learner's generator
             net = MLP(in_features=obs_dim, out_features=act_dim, num_cells=list(cfg.actor_hidden),
                       activation_class=nn.ReLU)
             self.actor = TensorDictSequential(
@@ -109,7 +109,6 @@ class Learner:
                 TanhModule(in_keys=["action_raw"], out_keys=["action"], low=low, high=high))
             critic = ValueOperator(Critic(obs_dim, act_dim, cfg.critic_hidden), in_keys=["observation", "action"])
             self.loss = DDPGLoss(self.actor, critic, delay_actor=True, delay_value=True)
-            self.generator_state = torch.get_rng_state()
         self.loss.make_value_estimator(gamma=cfg.gamma)
         self.target = SoftUpdate(self.loss, tau=cfg.target_update)
         self.actor_optim = torch.optim.Adam(self.loss.actor_network_params.values(True, True), lr=cfg.actor_lr)
