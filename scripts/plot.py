@@ -79,11 +79,10 @@ def run_info(run) -> dict:
                 gamma=cfg["agent"].get("gamma"), env_cfg=cfg["env"])
 
 
-def liquidation_figures(runs, labels, out: Path, block: int, last: int) -> list:
+def liquidation_figures(runs, infos, labels, out: Path, block: int, last: int) -> list:
     from trl_dgpq.almgren_chriss import ACModel
     from trl_dgpq.envs import LiquidationConfig
     from trl_dgpq.config import from_dict
-    infos = [run_info(r) for r in runs]
     frames = [pd.read_csv(Path(r) / "episodes.csv") for r in runs]
     model = ACModel.from_config(from_dict(LiquidationConfig, infos[0]["env_cfg"]))
     gammas = sorted({i["gamma"] for i in infos if i["gamma"] is not None}) or [None]
@@ -172,8 +171,9 @@ def main(argv=None) -> int:
         p.error("give one label per run")
     out = Path(args.out or args.runs[0])
     out.mkdir(parents=True, exist_ok=True)
-    if all((Path(r) / "config.json").is_file() and run_info(r)["env"] == "liquidation" for r in args.runs):
-        written = liquidation_figures(args.runs, labels, out, args.block, args.last)
+    infos = [run_info(r) if (Path(r) / "config.json").is_file() else None for r in args.runs]
+    if all(i is not None and i["env"] == "liquidation" for i in infos):
+        written = liquidation_figures(args.runs, infos, labels, out, args.block, args.last)
     else:
         written = plot_runs(args.runs, labels, out, logy_steps=not args.linear)
     for path in written:

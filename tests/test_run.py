@@ -184,3 +184,24 @@ def test_crash_check_script(tmp_path):
     crash = load_script("crash_check")
     assert crash.main(["--trials", "3", "--seeds", "3", "--episodes", "40", "--work", str(tmp_path),
                        "--json", str(tmp_path / "cc.json")]) == 0
+
+
+def test_liquidation_figures_and_table_pair_runs_by_seed_and_episode(tmp_path):
+    """plot.py on liquidation runs: the table divides each run's mean ac_cost by the
+    ac-optimal run's mean over the same (seed, episode) pairs only. TWAP runs seeds 1-2,
+    ac-optimal seeds 0-1: only seed 1 is shared."""
+    common = ("--env", "liquidation", "--episodes", 3, "--trades", 10, "--horizon", 10)
+    assert run("--agent", "ac-optimal", "--seeds", "0-1", "--out", tmp_path / "opt", *common) == 0
+    assert run("--agent", "twap", "--seeds", "1-2", "--out", tmp_path / "twap", *common) == 0
+    plot = load_script("plot")
+    assert plot.main([str(tmp_path / "opt"), str(tmp_path / "twap"), "--labels", "opt", "twap",
+                      "--out", str(tmp_path / "fig"), "--block", "1"]) == 0
+    assert (tmp_path / "fig" / "liquidation_cost.png").is_file() and (tmp_path / "fig" / "liquidation_time.png").is_file()
+    opt, twap = pd.read_csv(tmp_path / "opt" / "episodes.csv"), pd.read_csv(tmp_path / "twap" / "episodes.csv")
+    o = {e: c for s, e, c in zip(opt.seed, opt.episode, opt.ac_cost) if s == 1}
+    t = {e: c for s, e, c in zip(twap.seed, twap.episode, twap.ac_cost) if s == 1}
+    expected = sum(t.values()) / sum(o.values())
+    rows = {line.split("|")[1].strip(): line.split("|") for line in
+            (tmp_path / "fig" / "comparison.md").read_text().splitlines() if line.startswith("| ")}
+    assert rows["opt"][5].strip() == "1.000"
+    assert float(rows["twap"][5]) == pytest.approx(expected, abs=5e-4)
