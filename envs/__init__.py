@@ -3,9 +3,12 @@
 one line in ``ENVS``, one entry in ``trl_dgpq/presets.py``."""
 from .base import SeedBatchedEnv
 from .liquidation import LiquidationConfig, LiquidationEnv
+from .push import PushConfig, PushEnv
+from .push_gym import register as _register_gym
 from .square import SquareConfig, SquareEnv
 
-ENVS = {"square": SquareEnv, "liquidation": LiquidationEnv}
+ENVS = {"square": SquareEnv, "liquidation": LiquidationEnv, "push": PushEnv}
+_register_gym()  # gymnasium id "trl_dgpq/BlockPush-v0"
 
 
 def make_env(name: str, cfg, seeds, device="cpu") -> SeedBatchedEnv:
@@ -15,4 +18,4 @@ def make_env(name: str, cfg, seeds, device="cpu") -> SeedBatchedEnv:
 
 
 __all__ = ["ENVS", "make_env", "SeedBatchedEnv", "SquareEnv", "SquareConfig", "LiquidationEnv",
-           "LiquidationConfig"]
+           "LiquidationConfig", "PushEnv", "PushConfig"]

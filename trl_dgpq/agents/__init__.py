@@ -3,10 +3,12 @@
 from ..dgpq import DGPQ
 from .base import Agent
 from .ddpg import DDPG
+from .oracle import OraclePusher
 from .random import RandomAgent
 from .schedule import ACOptimalPolicy, TWAPPolicy
 
-AGENTS = {"dgpq": DGPQ, "random": RandomAgent, "ac-optimal": ACOptimalPolicy, "twap": TWAPPolicy, "ddpg": DDPG}
+AGENTS = {"dgpq": DGPQ, "random": RandomAgent, "ac-optimal": ACOptimalPolicy, "twap": TWAPPolicy, "ddpg": DDPG,
+          "oracle": OraclePusher}
 
 
 def make_agent(name: str, cfg, env, seeds):

@@ -1,0 +1,276 @@
+"""Block pushing on a table in pybullet (seed report 4.3; SPEC 3.3), batched over seeds.
+
+One pybullet client per seed, in DIRECT mode (headless), built from pybullet_data
+assets only: ``plane.urdf``, ``table/table.urdf`` (top 1.5 x 1.0 m, surface at
+z = 0.625, centred on the origin), ``cube_small.urdf`` as the block (5 cm, 0.1 kg)
+and ``cube.urdf`` scaled to 8 cm as the end effector: a kinematic-like pusher held
+by a fixed constraint at a constant height, just above the table, and driven by
+moving the constraint's target. The world never gains or loses bodies: a reset
+restores a snapshot taken after building (``restoreState``), contacts included.
+
+Actions 0..3 move the pusher's target ``step_size`` north / south / east / west
+(+y / -y / +x / -x), plus uniform noise in [-noise, noise] on the moved axis from
+the seed's own stream, clipped to the workspace (the table plus 0.1 m). Over the
+action's ``substeps`` physics steps the target moves in a straight line, so the
+pusher sweeps the path and drives the block by contact.
+
+Observation (6, float64): pusher xyz, block xyz (world frame, metres; clipped to
+the spec's box). Reward: 2 at the goal (block within ``goal_radius`` of ``goal``
+on the table), else 2 - |block - goal|_2 with the goal at the block's resting
+height. Terminated at the goal (``success``) or when the block leaves the table
+top or drops below it (``fell_off``; not a success); truncated at ``max_steps``.
+``success`` and ``fell_off`` go in every episode's CSV row.
+
+Exact resume: every client's physics (poses, velocities, contact caches) is saved
+with ``saveBullet`` and restored with ``restoreState`` into the same world; the
+constraint's target is a saved tensor. A run continued from a checkpoint takes
+bit-identical steps.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+import tempfile
+from dataclasses import dataclass
+from typing import Tuple
+
+import torch
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+
+from trl_dgpq.config import setting
+
+from .base import SeedBatchedEnv
+
+
+def _quiet_import():
+    """pybullet writes its build time to stderr (fd 2, from C) when imported; not on every run's console."""
+    sys.stderr.flush()
+    saved, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 2)
+    try:
+        import pybullet
+        import pybullet_data
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+    return pybullet, pybullet_data
+
+
+pb, pybullet_data = _quiet_import()
+
+MOVES = ((0.0, 1.0), (0.0, -1.0), (1.0, 0.0), (-1.0, 0.0))  # N, S, E, W
+TABLE_HALF = (0.75, 0.5)     # table.urdf: a 1.5 x 1.0 top ...
+TABLE_TOP = 0.625            # ... whose surface is at this height
+BLOCK_HALF = 0.025           # cube_small.urdf
+PUSHER_HALF = 0.04           # cube.urdf at globalScaling 2 * PUSHER_HALF
+BLOCK_Z = TABLE_TOP + BLOCK_HALF
+PUSHER_Z = TABLE_TOP + PUSHER_HALF + 0.003   # clear of the table, level with the block's side
+SETTLE_STEPS = 30           # physics steps before the snapshot every episode starts from
+WORKSPACE = (TABLE_HALF[0] + 0.1, TABLE_HALF[1] + 0.1)
+# Observation box: the pusher stays in the workspace; the block is reported up to 0.5 m
+# past the table's edge (it is terminal once off the top) and between the floor and 1 m.
+OBS_LOW = (-WORKSPACE[0], -WORKSPACE[1], PUSHER_Z - 0.05, -TABLE_HALF[0] - 0.5, -TABLE_HALF[1] - 0.5, 0.0)
+OBS_HIGH = (WORKSPACE[0], WORKSPACE[1], PUSHER_Z + 0.05, TABLE_HALF[0] + 0.5, TABLE_HALF[1] + 0.5, 1.0)
+
+
+def _on_table(xy, margin: float = 0.0) -> bool:
+    return abs(xy[0]) <= TABLE_HALF[0] - margin and abs(xy[1]) <= TABLE_HALF[1] - margin
+
+
+@dataclass
+class PushConfig:
+    """Block pushing in pybullet (SPEC 3.3)."""
+    max_steps: int = setting(50, "step cap per episode (truncation, not termination)")
+    step_size: float = setting(0.1, "length of a pusher move, metres")
+    noise: float = setting(0.01, "uniform noise on the moved axis, in [-noise, noise] metres")
+    goal: Tuple[float, ...] = setting((0.55, 0.0), "goal x,y on the table (the far end)")
+    goal_radius: float = setting(0.1, "terminated (success) with the block within this distance of the goal")
+    block_start: Tuple[float, ...] = setting((-0.45, 0.0), "block's start x,y")
+    pusher_start: Tuple[float, ...] = setting((-0.55, 0.0), "pusher's start x,y (behind the block)")
+    substeps: int = setting(24, "physics steps per action (the pusher's target moves along them)")
+    time_step: float = setting(1.0 / 120.0, "physics time step, seconds (24 x 1/120: 0.2 s, 0.5 m/s a move)")
+    solver_iterations: int = setting(20, "Bullet's constraint-solver iterations per physics step")
+    push_force: float = setting(50.0, "largest force of the constraint holding the pusher, newtons")
+
+    def check(self) -> "PushConfig":
+        def positive(name):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be > 0, got {v}")
+        for name in ("max_steps", "step_size", "goal_radius", "substeps", "time_step", "solver_iterations",
+                     "push_force"):
+            positive(name)
+        if not (math.isfinite(self.noise) and 0 <= self.noise < self.step_size):
+            raise ValueError(f"noise must be in [0, step_size), got {self.noise}")
+        for name in ("goal", "block_start", "pusher_start"):
+            xy = getattr(self, name)
+            if len(xy) != 2 or not all(math.isfinite(v) for v in xy):
+                raise ValueError(f"{name} must be two numbers x,y, got {xy}")
+        for name in ("goal", "block_start"):
+            if not _on_table(getattr(self, name), BLOCK_HALF):
+                raise ValueError(f"{name} {getattr(self, name)} is not on the table "
+                                 f"(|x| <= {TABLE_HALF[0] - BLOCK_HALF}, |y| <= {TABLE_HALF[1] - BLOCK_HALF})")
+        if not all(abs(v) <= w for v, w in zip(self.pusher_start, WORKSPACE)):
+            raise ValueError(f"pusher_start {self.pusher_start} is outside the workspace |x| <= {WORKSPACE[0]}, "
+                             f"|y| <= {WORKSPACE[1]}")
+        gap = max(abs(a - b) for a, b in zip(self.pusher_start, self.block_start))
+        if gap < PUSHER_HALF + BLOCK_HALF:
+            raise ValueError(f"pusher_start {self.pusher_start} overlaps the block at {self.block_start}")
+        if math.dist(self.block_start, self.goal) <= self.goal_radius:
+            raise ValueError("block_start is already at the goal")
+        return self
+
+
+class _World:
+    """One seed's pybullet client: the bodies, the pusher's constraint and the
+    snapshot every episode starts from."""
+
+    def __init__(self, cfg: PushConfig):
+        self.client = c = pb.connect(pb.DIRECT)
+        if c < 0:
+            raise RuntimeError("pybullet could not open a DIRECT client")
+        pb.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=c)
+        pb.setGravity(0.0, 0.0, -9.81, physicsClientId=c)
+        # deterministicOverlappingPairs: contact order independent of memory layout
+        pb.setPhysicsEngineParameter(fixedTimeStep=cfg.time_step, numSolverIterations=cfg.solver_iterations,
+                                     deterministicOverlappingPairs=1, physicsClientId=c)
+        pb.loadURDF("plane.urdf", physicsClientId=c)
+        pb.loadURDF("table/table.urdf", useFixedBase=True, physicsClientId=c)
+        self.block = pb.loadURDF("cube_small.urdf", [*cfg.block_start, BLOCK_Z], physicsClientId=c)
+        start = [*cfg.pusher_start, PUSHER_Z]
+        self.pusher = pb.loadURDF("cube.urdf", start, globalScaling=2 * PUSHER_HALF, physicsClientId=c)
+        self.constraint = pb.createConstraint(self.pusher, -1, -1, -1, pb.JOINT_FIXED, [0, 0, 0], [0, 0, 0],
+                                              start, physicsClientId=c)
+        self.force = cfg.push_force
+        pb.changeConstraint(self.constraint, start, maxForce=self.force, physicsClientId=c)
+        self.start = start
+        # Let the block settle on the table first: the snapshot then holds the contacts every
+        # episode starts with (a snapshot of the unstepped world made the first episode differ).
+        for _ in range(SETTLE_STEPS):
+            pb.stepSimulation(physicsClientId=c)
+        self.snapshot = pb.saveState(physicsClientId=c)
+
+    def reset(self) -> None:
+        pb.restoreState(self.snapshot, physicsClientId=self.client)
+        pb.changeConstraint(self.constraint, self.start, maxForce=self.force, physicsClientId=self.client)
+
+    def move(self, start, end, substeps: int) -> None:
+        """Sweep the pusher's target from ``start`` to ``end`` (xyz lists) in ``substeps`` steps."""
+        c, cid, force = self.client, self.constraint, self.force
+        change, step = pb.changeConstraint, pb.stepSimulation
+        (x0, y0, z), (x1, y1, _) = start, end
+        for k in range(1, substeps + 1):
+            f = k / substeps
+            change(cid, (x0 + f * (x1 - x0), y0 + f * (y1 - y0), z), maxForce=force, physicsClientId=c)
+            step(physicsClientId=c)
+
+    def positions(self):
+        c = self.client
+        return (*pb.getBasePositionAndOrientation(self.pusher, physicsClientId=c)[0],
+                *pb.getBasePositionAndOrientation(self.block, physicsClientId=c)[0])
+
+    def save(self) -> torch.Tensor:
+        """The physics state as the bytes of a .bullet file (uint8 tensor)."""
+        fd, path = tempfile.mkstemp(suffix=".bullet")
+        os.close(fd)
+        try:
+            pb.saveBullet(path, physicsClientId=self.client)
+            with open(path, "rb") as f:
+                return torch.frombuffer(bytearray(f.read()), dtype=torch.uint8)
+        finally:
+            os.unlink(path)
+
+    def load(self, data: torch.Tensor, target) -> None:
+        fd, path = tempfile.mkstemp(suffix=".bullet")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(data.numpy().tobytes())
+            pb.restoreState(fileName=path, physicsClientId=self.client)
+        finally:
+            os.unlink(path)
+        pb.changeConstraint(self.constraint, target, maxForce=self.force, physicsClientId=self.client)
+
+    def close(self) -> None:
+        if self.client is not None and pb.isConnected(self.client):
+            pb.disconnect(self.client)
+        self.client = None
+
+
+class PushEnv(SeedBatchedEnv):
+    """TorchRL env, ``batch_size=[len(seeds)]``, one pybullet client per seed;
+    observations are float64 ``(S, 6)``. ``close()`` disconnects every client."""
+
+    Config = PushConfig
+    _state_names = ("target",)
+    episode_info = ("success", "fell_off")
+
+    def __init__(self, seeds=(0,), cfg: PushConfig | None = None, device="cpu", **overrides):
+        super().__init__(seeds, cfg, device, **overrides)
+        cfg = self.cfg
+        f64 = dict(dtype=torch.float64, device=self.device)
+        self.worlds = [_World(cfg) for _ in self.seeds]
+        self.start = torch.tensor([*cfg.pusher_start, PUSHER_Z], **f64)
+        self.target = self.start.repeat(self.num_seeds, 1)          # the constraint's target, (S, 3)
+        self.goal = torch.tensor([*cfg.goal, BLOCK_Z], **f64)
+        self.moves = torch.tensor(MOVES, **f64)
+        self.workspace = torch.tensor(WORKSPACE, **f64)
+        self.obs_low, self.obs_high = torch.tensor(OBS_LOW, **f64), torch.tensor(OBS_HIGH, **f64)
+
+    def _make_specs(self) -> None:
+        S = self.num_seeds
+        low = torch.tensor(OBS_LOW, dtype=torch.float64).expand(S, 6)
+        high = torch.tensor(OBS_HIGH, dtype=torch.float64).expand(S, 6)
+        flag = Categorical(2, shape=(S,), dtype=torch.bool, device=self.device)
+        self.observation_spec = Composite(
+            observation=Bounded(low, high, shape=(S, 6), dtype=torch.float64, device=self.device),
+            success=flag.clone(), fell_off=flag.clone(), shape=(S,), device=self.device)
+        self.action_spec = Categorical(len(MOVES), shape=(S,), device=self.device)
+        self.reward_spec = Unbounded(shape=(S, 1), dtype=torch.float64, device=self.device)
+
+    def _observe(self) -> torch.Tensor:
+        obs = torch.tensor([w.positions() for w in self.worlds], dtype=torch.float64, device=self.device)
+        return torch.maximum(torch.minimum(obs, self.obs_high), self.obs_low)
+
+    def _initial(self, mask):
+        for i in mask.nonzero()[:, 0].tolist():
+            self.worlds[i].reset()
+        self.target[mask] = self.start
+        false = torch.zeros(self.num_seeds, dtype=torch.bool, device=self.device)
+        return self._td(observation=self._observe(), success=false, fell_off=false.clone())
+
+    def _transition(self, action):
+        cfg = self.cfg
+        jitter = (2.0 * self.rng.uniform(1) - 1.0) * cfg.noise            # (S, 1), the seed's own stream
+        start = self.target.clone()
+        xy = start[:, :2] + self.moves[action] * (cfg.step_size + jitter)
+        self.target[:, :2] = torch.maximum(torch.minimum(xy, self.workspace), -self.workspace)
+        for world, a, b in zip(self.worlds, start.tolist(), self.target.tolist()):
+            world.move(a, b, cfg.substeps)
+        obs = self._observe()
+        block = obs[:, 3:]
+        off = ((block[:, 0].abs() > TABLE_HALF[0]) | (block[:, 1].abs() > TABLE_HALF[1])
+               | (block[:, 2] < TABLE_TOP))
+        dist = torch.linalg.vector_norm(block - self.goal, dim=-1)
+        success = ~off & (torch.linalg.vector_norm(block[:, :2] - self.goal[:2], dim=-1) <= cfg.goal_radius)
+        reward = torch.where(success, 2.0, 2.0 - dist)
+        return self._td(observation=obs, success=success, fell_off=off), reward, success | off
+
+    # ------------------------------------------------------------- state
+    def state_dict(self, *args, **kwargs) -> dict:
+        return {**super().state_dict(), "bullet": [w.save() for w in self.worlds]}
+
+    def load_state_dict(self, state: dict, strict: bool = True) -> None:
+        super().load_state_dict(state, strict)
+        for world, data, target in zip(self.worlds, state["bullet"], self.target.tolist()):
+            world.load(data, target)
+
+    def num_bodies(self) -> list:
+        """Bodies in each client's world (constant: resets never add any)."""
+        return [pb.getNumBodies(physicsClientId=w.client) for w in self.worlds]
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        for world in getattr(self, "worlds", ()):
+            world.close()
+        super().close(raise_if_closed=raise_if_closed)

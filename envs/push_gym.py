@@ -1,0 +1,67 @@
+"""The block-pushing env through the gymnasium API, for code outside TorchRL.
+
+A thin adapter: one seed of ``PushEnv`` (the same physics, rewards and random
+streams), with numpy observations and ``Discrete(4)`` actions. Registered as
+``trl_dgpq/BlockPush-v0`` when ``trl_dgpq.envs`` is imported::
+
+    import gymnasium as gym, trl_dgpq.envs
+    env = gym.make("trl_dgpq/BlockPush-v0", max_steps=50)   # any PushConfig setting
+    obs, info = env.reset(seed=3)                           # seed 3 = seed 3 of a batched run
+
+``reset(seed=s)`` re-keys the env's random stream to seed s (as ``--seeds s`` does);
+without a seed, the stream goes on. ``info`` holds ``success`` and ``fell_off``.
+The env truncates at ``max_steps`` itself, so it is registered without a TimeLimit.
+"""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import torch
+from gymnasium import spaces
+from tensordict import TensorDict
+
+from .push import MOVES, OBS_HIGH, OBS_LOW, PushEnv
+
+ENV_ID = "trl_dgpq/BlockPush-v0"
+
+
+class GymPushEnv(gym.Env):
+    metadata = {"render_modes": []}
+
+    def __init__(self, seed: int = 0, **settings):
+        self.env = PushEnv([seed], **settings)
+        self.observation_space = spaces.Box(np.array(OBS_LOW), np.array(OBS_HIGH), dtype=np.float64)
+        self.action_space = spaces.Discrete(len(MOVES))
+        self._running = False
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self.env._set_seed(seed)
+        out = self.env.reset()
+        self._running = True
+        return out.get("observation")[0].numpy(), self._info(out)
+
+    def step(self, action):
+        if not self._running:
+            raise RuntimeError("call reset() before step(), and again after an episode ends")
+        if not self.action_space.contains(action):
+            raise ValueError(f"action must be an integer in [0, {self.action_space.n}), got {action!r}")
+        td = TensorDict({"action": torch.tensor([int(action)])}, batch_size=[1])
+        nxt = self.env.step(td).get("next")
+        terminated, truncated = bool(nxt.get("terminated")[0]), bool(nxt.get("truncated")[0])
+        self._running = not (terminated or truncated)
+        return (nxt.get("observation")[0].numpy(), float(nxt.get("reward")[0]), terminated, truncated,
+                self._info(nxt))
+
+    @staticmethod
+    def _info(td) -> dict:
+        return {"success": bool(td.get("success")[0]), "fell_off": bool(td.get("fell_off")[0])}
+
+    def close(self):
+        self.env.close()
+
+
+def register() -> None:
+    if ENV_ID not in gym.registry:
+        gym.register(ENV_ID, entry_point=GymPushEnv, max_episode_steps=None)

@@ -1,0 +1,201 @@
+"""The pybullet block-pushing env, its scripted oracle and its gymnasium adapter."""
+import io
+import math
+
+import gymnasium as gym
+import numpy as np
+import pybullet as pb
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.envs.utils import check_env_specs
+
+from trl_dgpq.collectors.experiment import build, resolve_config
+from trl_dgpq.collectors.online import OnlineCollector
+from trl_dgpq.envs import PushEnv
+from trl_dgpq.envs.push_gym import ENV_ID
+
+N, S, E, W = range(4)
+
+
+def step(env, actions):
+    """Step with one action per seed; the "next" TensorDict."""
+    return env.step(TensorDict({"action": torch.tensor(actions)}, batch_size=env.batch_size)).get("next")
+
+
+def trajectory(env, actions):
+    """Observations after each of ``actions`` (a list of per-seed action lists), (T, S, 6)."""
+    return torch.stack([step(env, a).get("observation") for a in actions])
+
+
+def test_specs_and_a_five_step_rollout():
+    env = PushEnv([0, 1])
+    check_env_specs(env)
+    td = env.rollout(5, break_when_any_done=False)
+    assert td.batch_size == (2, 5)
+    assert td["next", "observation"].shape == (2, 5, 6) and td["next", "observation"].dtype == torch.float64
+    assert td["next", "reward"].shape == (2, 5, 1)
+    # the pusher is held at one height and the block rests on the table (z = 0.625 + 0.025)
+    obs = td["next", "observation"]
+    assert torch.allclose(obs[..., 2], obs[0, 0, 2]) and torch.allclose(obs[..., 5], torch.tensor(0.65, dtype=torch.float64), atol=2e-3)
+    env.close()
+
+
+def test_reward_is_two_minus_distance_and_the_goal_ends_the_episode():
+    """Block 0.15 m from the goal, pusher just behind it: pushes east earn 2 - |block - goal|
+    (computed here from the observation) until the block is within goal_radius, then 2 and
+    terminated with success."""
+    env = PushEnv([0], block_start=(0.35, 0.0), pusher_start=(0.25, 0.0), goal=(0.55, 0.0), noise=0.0)
+    env.reset()
+    for _ in range(5):
+        nxt = step(env, [E])
+        block = nxt["observation"][0, 3:]
+        dist = math.dist(block.tolist(), [0.55, 0.0, 0.65])
+        if bool(nxt["terminated"]):
+            break
+        assert float(nxt["reward"]) == pytest.approx(2.0 - dist, abs=1e-12)
+        assert not nxt["success"].item() and math.dist(block[:2].tolist(), [0.55, 0.0]) > 0.1
+    assert nxt["terminated"].item() and nxt["success"].item() and not nxt["fell_off"].item()
+    assert float(nxt["reward"]) == 2.0 and math.dist(block[:2].tolist(), [0.55, 0.0]) <= 0.1
+    env.close()
+
+
+def test_pushing_the_block_off_the_table_is_terminal_but_no_success():
+    env = PushEnv([0], block_start=(0.65, 0.0), pusher_start=(0.55, 0.0), goal=(0.0, 0.0), noise=0.0)
+    env.reset()
+    for k in range(4):
+        nxt = step(env, [E])
+        if bool(nxt["terminated"]):
+            break
+    assert nxt["fell_off"].item() and not nxt["success"].item() and k >= 1
+    assert nxt["observation"][0, 3] > 0.75 or nxt["observation"][0, 5] < 0.625  # off the 1.5 m top
+    env.close()
+
+
+def test_the_step_cap_truncates():
+    env = PushEnv([0], max_steps=3)
+    env.reset()
+    flags = [(bool(n["terminated"]), bool(n["truncated"])) for n in (step(env, [N]) for _ in range(3))]
+    assert flags == [(False, False), (False, False), (False, True)]
+    env.close()
+
+
+ACTIONS = [[E, N], [E, E], [N, E], [E, W], [S, E], [E, E], [W, S], [E, E]]
+
+
+def test_deterministic_and_a_reset_restores_everything():
+    """Same seed, same actions: bit-identical (with action noise). An episode after a reset
+    equals the first episode of a fresh env (noise off, so the stream's position does not
+    matter): contacts and velocities of the last episode leave nothing behind."""
+    one, two = PushEnv([4, 9]), PushEnv([4, 9])
+    one.reset(), two.reset()
+    assert torch.equal(trajectory(one, ACTIONS), trajectory(two, ACTIONS))
+    fresh, used = PushEnv([4], noise=0.0), PushEnv([4], noise=0.0)
+    fresh.reset(), used.reset()
+    trajectory(used, [[E], [E], [E], [N], [E], [S]])         # leaves the block moving, in contact
+    used.reset()
+    assert torch.equal(trajectory(fresh, [[a[0]] for a in ACTIONS]), trajectory(used, [[a[0]] for a in ACTIONS]))
+
+
+def test_a_seed_does_not_depend_on_its_batch():
+    """Seed 9 in [4, 9] and alone, the same actions: the same trajectory (its own noise and client)."""
+    pair, alone = PushEnv([4, 9]), PushEnv([9])
+    pair.reset(), alone.reset()
+    assert torch.equal(trajectory(pair, ACTIONS)[:, 1], trajectory(alone, [[a[1]] for a in ACTIONS])[:, 0])
+    # and the noise is the seed's: seed 4 moved the same way differs
+    pair.reset(), alone.reset()
+    assert not torch.equal(trajectory(pair, [[E, E]] * 3)[:, 0], trajectory(alone, [[E]] * 3)[:, 0])
+
+
+def test_state_dict_round_trip_is_exact():
+    """Save mid-episode (block moving, in contact) through torch.save, load into a fresh env:
+    the next steps are bit-identical to the original's."""
+    env = PushEnv([1, 2])
+    env.reset()
+    trajectory(env, ACTIONS[:3])
+    buf = io.BytesIO()
+    torch.save(env.state_dict(), buf)
+    buf.seek(0)
+    other = PushEnv([1, 2])
+    other.reset()
+    trajectory(other, [[W, S]] * 2)                           # a different history, then load
+    other.load_state_dict(torch.load(buf, weights_only=True))
+    assert torch.equal(other.t, env.t)
+    assert torch.equal(trajectory(env, ACTIONS[3:]), trajectory(other, ACTIONS[3:]))
+
+
+def test_close_disconnects_every_client_and_resets_add_no_bodies():
+    env = PushEnv([0, 1, 2])
+    clients = [w.client for w in env.worlds]
+    bodies = env.num_bodies()
+    assert bodies == [4, 4, 4]                                # plane, table, block, pusher
+    for _ in range(1000):
+        env.reset()
+    assert env.num_bodies() == bodies
+    assert all(pb.isConnected(c) for c in clients)
+    env.close()
+    assert not any(pb.isConnected(c) for c in clients)
+    env.close()                                               # twice is harmless
+
+
+def test_bad_settings_are_refused():
+    for bad in (dict(block_start=(0.9, 0.0)), dict(goal=(0.0, 0.6)), dict(pusher_start=(-0.45, 0.02)),
+                dict(noise=0.2), dict(substeps=0), dict(block_start=(0.5, 0.0))):
+        with pytest.raises(ValueError):
+            PushEnv([0], **bad)
+
+
+def run_rows(seeds, episodes=1, **settings):
+    config = resolve_config(seeds=seeds, episodes=episodes, env="push", **settings)
+    env, agent = build(config)
+    rows = OnlineCollector(env, agent, episodes, progress=False).run()
+    env.close()
+    return rows
+
+
+def test_oracle_reaches_the_goal_in_at_least_95_percent_of_20_seeded_episodes():
+    rows = run_rows(list(range(20)), agent="oracle")
+    assert rows["success"].mean() >= 0.95 and not rows["fell_off"].any()
+    assert rows["steps"].median() <= 12                       # 1 m at 0.1 m per push
+
+
+def test_oracle_lines_up_from_the_side():
+    """Block off the goal's line and the pusher on the far side: it must go round, push across,
+    then along (not one straight push)."""
+    rows = run_rows([0, 1, 2, 3], agent="oracle", block_start=(-0.3, 0.2), pusher_start=(0.0, -0.3),
+                    noise=0.03, max_steps=80)
+    assert rows["success"].all() and (rows["steps"] > 15).all()
+
+
+def test_random_agent_rarely_succeeds_and_rows_carry_success_and_fell_off():
+    rows = run_rows([0, 1], episodes=2, agent="random", max_steps=20)
+    assert {"success", "fell_off"} <= set(rows.columns)
+    assert not rows["success"].any()                          # 1 m in 20 random moves: no
+    assert ((rows["steps"] == 20) | rows["terminated"]).all()
+
+
+def test_dgpq_presets_differ_only_in_the_kernel():
+    rbf = resolve_config(env="push", agent="dgpq")["agent"]
+    manifold = resolve_config(env="push", agent="dgpq", preset="manifold")["agent"]
+    diff = {k for k in rbf if rbf[k] != manifold[k]} | {f"gp.{k}" for k in rbf["gp"] if rbf["gp"][k] != manifold["gp"][k]}
+    assert diff == {"gp", "gp.kernel"}
+    assert rbf["state_scale"] == pytest.approx([1 / 1.5, 1.0, 0.0, 1 / 1.5, 1.0, 0.0])
+
+
+def test_gymnasium_adapter_is_the_same_env():
+    """gym.make's env with reset(seed=3) steps exactly as seed 3 of PushEnv; the checker passes."""
+    from gymnasium.utils.env_checker import check_env
+    env = gym.make(ENV_ID, max_steps=12)
+    check_env(env.unwrapped)
+    obs, info = env.reset(seed=3)
+    ours = PushEnv([3], max_steps=12)
+    assert np.array_equal(obs, ours.reset()["observation"][0].numpy()) and info == dict(success=False, fell_off=False)
+    for a in [E, E, N, E, S, E]:
+        obs, reward, terminated, truncated, info = env.step(a)
+        nxt = step(ours, [a])
+        assert np.array_equal(obs, nxt["observation"][0].numpy()) and reward == float(nxt["reward"])
+        assert (terminated, truncated) == (bool(nxt["terminated"]), bool(nxt["truncated"]))
+    with pytest.raises(ValueError):
+        env.step(7)
+    env.close()
+    ours.close()
