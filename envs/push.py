@@ -19,7 +19,8 @@ the spec's box). Reward: 2 at the goal (block within ``goal_radius`` of ``goal``
 on the table), else 2 - |block - goal|_2 with the goal at the block's resting
 height. Terminated at the goal (``success``) or when the block leaves the table
 top or drops below it (``fell_off``; not a success); truncated at ``max_steps``.
-``success`` and ``fell_off`` go in every episode's CSV row.
+``success``, ``fell_off`` and ``distance`` (block to goal, the final one) go in every
+episode's CSV row.
 
 Exact resume: every client's physics (poses, velocities, contact caches) is saved
 with ``saveBullet`` and restored with ``restoreState`` into the same world; the
@@ -204,7 +205,7 @@ class PushEnv(SeedBatchedEnv):
 
     Config = PushConfig
     _state_names = ("target",)
-    episode_info = ("success", "fell_off")
+    episode_info = ("success", "fell_off", "distance")
 
     def __init__(self, seeds=(0,), cfg: PushConfig | None = None, device="cpu", **overrides):
         super().__init__(seeds, cfg, device, **overrides)
@@ -225,7 +226,8 @@ class PushEnv(SeedBatchedEnv):
         flag = Categorical(2, shape=(S,), dtype=torch.bool, device=self.device)
         self.observation_spec = Composite(
             observation=Bounded(low, high, shape=(S, 6), dtype=torch.float64, device=self.device),
-            success=flag.clone(), fell_off=flag.clone(), shape=(S,), device=self.device)
+            success=flag.clone(), fell_off=flag.clone(),
+            distance=Unbounded(shape=(S,), dtype=torch.float64, device=self.device), shape=(S,), device=self.device)
         self.action_spec = Categorical(len(MOVES), shape=(S,), device=self.device)
         self.reward_spec = Unbounded(shape=(S, 1), dtype=torch.float64, device=self.device)
 
@@ -238,7 +240,11 @@ class PushEnv(SeedBatchedEnv):
             self.worlds[i].reset()
         self.target[mask] = self.start
         false = torch.zeros(self.num_seeds, dtype=torch.bool, device=self.device)
-        return self._td(observation=self._observe(), success=false, fell_off=false.clone())
+        obs = self._observe()
+        return self._td(observation=obs, success=false, fell_off=false.clone(), distance=self._distance(obs))
+
+    def _distance(self, obs) -> torch.Tensor:
+        return torch.linalg.vector_norm(obs[:, 3:] - self.goal, dim=-1)
 
     def _transition(self, action):
         cfg = self.cfg
@@ -252,10 +258,10 @@ class PushEnv(SeedBatchedEnv):
         block = obs[:, 3:]
         off = ((block[:, 0].abs() > TABLE_HALF[0]) | (block[:, 1].abs() > TABLE_HALF[1])
                | (block[:, 2] < TABLE_TOP))
-        dist = torch.linalg.vector_norm(block - self.goal, dim=-1)
+        dist = self._distance(obs)
         success = ~off & (torch.linalg.vector_norm(block[:, :2] - self.goal[:2], dim=-1) <= cfg.goal_radius)
         reward = torch.where(success, 2.0, 2.0 - dist)
-        return self._td(observation=obs, success=success, fell_off=off), reward, success | off
+        return self._td(observation=obs, success=success, fell_off=off, distance=dist), reward, success | off
 
     # ------------------------------------------------------------- state
     def state_dict(self, *args, **kwargs) -> dict:

@@ -4,6 +4,7 @@
     python scripts/bench.py gp      # cost of one add + one predict per GP (exact, sparse, naive)
     python scripts/bench.py dgpq    # cost per seed-step of the whole DGPQ loop on the square
     python scripts/bench.py kernel  # manifold vs RBF GP regression on discontinuous functions
+    python scripts/bench.py push    # block pushing: agent steps per second, share of physics
 """
 from __future__ import annotations
 
@@ -223,6 +224,60 @@ def bench_kernel(args):
     print(f"wrote {out}")
 
 
+def bench_push(args):
+    """Block pushing at S = 1 and 8 seeds: agent steps per second (S / wall time of a batched
+    step) with random actions (the env alone) and with DGPQ ("shaped" preset, fresh runs, so
+    the first ``--steps`` steps of learning), and the share of DGPQ's step spent in physics
+    (pybullet's changeConstraint + stepSimulation: the time inside ``_World.move``).
+    Repeated ``--repeats`` times; the figure is the repeat with the least wall time."""
+    import os
+
+    from trl_dgpq.envs import push as push_module
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    from trl_dgpq.collectors.online import OnlineCollector
+
+    physics = [0.0]
+    move = push_module._World.move
+
+    def timed_move(self, *a):
+        t0 = time.perf_counter()
+        move(self, *a)
+        physics[0] += time.perf_counter() - t0
+    push_module._World.move = timed_move
+
+    def one(S, agent):
+        cfg = resolve_config(env="push", agent=agent, seeds=list(range(S)), episodes=10 ** 9)
+        env, ag = build(cfg)
+        OnlineCollector(env, ag, 10 ** 9, max_total_steps=5, progress=False).run()  # warm-up
+        physics[0] = 0.0
+        c = OnlineCollector(env, ag, 10 ** 9, max_total_steps=args.steps, progress=False)
+        c.run()
+        env.close()
+        wall = float(np.sum(c.step_seconds))
+        return dict(step_seconds=[round(x, 7) for x in c.step_seconds], wall_s=wall, physics_s=physics[0])
+
+    results = []
+    print(f"torch threads {torch.get_num_threads()}; load average {os.getloadavg()}; {args.steps} batched steps "
+          f"x {args.repeats} repeats")
+    print(f"{'agent':>7} {'seeds':>6} {'agent steps/s':>14} {'ms/batched step':>16} {'physics share':>14}")
+    for agent in ("random", "dgpq"):
+        for S in args.seed_counts:
+            runs = [one(S, agent) for _ in range(args.repeats)]
+            best = min(runs, key=lambda r: r["wall_s"])
+            r = dict(agent=agent, seeds=S, agent_steps_per_s=S * args.steps / best["wall_s"],
+                     ms_per_batched_step=best["wall_s"] / args.steps * 1e3,
+                     physics_share=best["physics_s"] / best["wall_s"], repeats=runs)
+            results.append(r)
+            print(f"{agent:>7} {S:>6} {r['agent_steps_per_s']:>14.0f} {r['ms_per_batched_step']:>16.2f} "
+                  f"{r['physics_share']:>14.1%}", flush=True)
+    out = Path(args.out or "bench-push.json")
+    out.write_text(json.dumps(dict(meta=dict(torch=torch.__version__, threads=torch.get_num_threads(),
+                                             steps=args.steps, load_average_end=os.getloadavg(),
+                                             statistic="repeat with the least wall time"),
+                                   results=results), indent=1))
+    print(f"wrote {out}")
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="what", required=True)
@@ -247,6 +302,12 @@ def main(argv=None):
     k.add_argument("--lr", type=float, default=0.02)
     k.add_argument("--out", default=None)
     k.set_defaults(fn=bench_kernel)
+    b = sub.add_parser("push", help="block pushing: agent steps per second, physics share")
+    b.add_argument("--steps", type=int, default=300, help="batched steps per measurement")
+    b.add_argument("--repeats", type=int, default=3)
+    b.add_argument("--seed-counts", nargs="+", type=int, default=[1, 8])
+    b.add_argument("--out", default=None)
+    b.set_defaults(fn=bench_push)
     args = p.parse_args(argv)
     torch.set_num_threads(torch.get_num_threads())
     args.fn(args)

@@ -18,6 +18,16 @@ Liquidation runs (all runs of a comparison, e.g. runs/liq/*) instead give
     comparison.md           over the last --last episodes of each run: mean ac_cost and
                             shortfall, and their ratio to an ac-optimal run of the
                             comparison on the same (seed, episode) price paths
+
+Block-pushing runs (all runs of a comparison, e.g. runs/push/*) instead give
+    push.png                the block's distance to the goal at each episode's end (the final
+                            reward is 2 minus it; median and inter-quartile band over seeds;
+                            seed report Fig. 5 -- not the return, which is larger for a
+                            50-step failure than a 10-step success) above the success rate per episode (share
+                            of seeds whose block reached the goal), all runs on one axis
+    push.md                 over the last --last episodes (default 20): success rate,
+                            mean steps of the successful episodes, fall-offs, the first
+                            successful episode (median over seeds), kernel fits
 """
 from __future__ import annotations
 
@@ -149,6 +159,49 @@ def comparison_table(frames, labels, infos, last: int) -> str:
     return "\n".join(lines) + "\n" + note
 
 
+def push_figures(runs, labels, out: Path, last: int) -> list:
+    frames = [pd.read_csv(Path(r) / "episodes.csv") for r in runs]
+    fig, (ax, sax) = plt.subplots(2, 1, figsize=(6.4, 6.4), sharex=True, height_ratios=(3, 2))
+    for df, label in zip(frames, labels):
+        b = band(df, df["distance"])
+        line, = ax.plot(b.index, b["median"], label=f"{label} ({df.seed.nunique()} seeds)", lw=1.2)
+        ax.fill_between(b.index, b["q25"], b["q75"], color=line.get_color(), alpha=0.25, lw=0)
+        sax.plot(b.index, df["success"].groupby(df["episode"]).mean(), color=line.get_color(), lw=1.2)
+    # Not the return: 2 - distance is earned on every step, so a 50-step failure returns more
+    # than a 10-step success. The final reward is 2 - this distance (2 within the goal radius).
+    ax.set_ylabel("block's final distance to the goal (m)")
+    ax.legend(title="median, shaded: inter-quartile range", fontsize=8, title_fontsize=8)
+    sax.set_ylabel("success rate (share of seeds)")
+    sax.set_xlabel("episode")
+    sax.set_ylim(-0.03, 1.03)
+    for a in (ax, sax):
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out / "push.png", dpi=120)
+    plt.close(fig)
+    (out / "push.md").write_text(push_table(frames, labels, last))
+    return [out / "push.png", out / "push.md"]
+
+
+def push_table(frames, labels, last: int) -> str:
+    lines = ["| run | seeds x episodes | success, last episodes | steps to goal (successes) | fell off "
+             "| first success (median episode) | kernel fits per seed | ms per seed-step |",
+             "|---|---|---|---|---|---|---|---|"]
+    for df, label in zip(frames, labels):
+        tail = df[df["episode"] > df["episode"].max() - last]
+        wins = tail[tail["success"]]
+        first = df[df["success"]].groupby("seed")["episode"].min().reindex(df.seed.unique())
+        fits = df.groupby("seed")["kernel_fits"].max().mean() if "kernel_fits" in df else 0
+        steps = f"{wins.steps.mean():.1f}" if len(wins) else "–"
+        median = first.fillna(float("inf")).median()            # a seed that never succeeded counts as last
+        first_txt = ("never" if median == float("inf") else f"{median:g}") + (
+            f" ({first.isna().sum()} never)" if first.isna().any() else "")
+        lines.append(f"| {label} | {df.seed.nunique()} x {df.episode.max()} | {tail.success.mean():.1%} | {steps} "
+                     f"| {tail.fell_off.mean():.1%} | {first_txt} | {fits:g} "
+                     f"| {df.wall_s.sum() / df.steps.sum() * 1e3:.2f} |")
+    return "\n".join(lines) + f"\n\nLast {last} episodes of each run; steps to goal: mean over its successful ones.\n"
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("runs", nargs="*", help="run folders holding episodes.csv (default: newest under runs/)")
@@ -156,7 +209,8 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=None, help="folder for the PNGs (default: the first run folder)")
     p.add_argument("--linear", action="store_true", help="linear y axis for steps")
     p.add_argument("--block", type=int, default=100, help="liquidation: episodes per plotted mean")
-    p.add_argument("--last", type=int, default=1000, help="liquidation: episodes at the end that the table uses")
+    p.add_argument("--last", type=int, default=None,
+                   help="episodes at the end that the table uses (liquidation: 1000, push: 20)")
     args = p.parse_args(argv)
     if not args.runs:
         found = sorted(Path("runs").glob("*/episodes.csv"), key=lambda f: f.stat().st_mtime)
@@ -172,8 +226,11 @@ def main(argv=None) -> int:
     out = Path(args.out or args.runs[0])
     out.mkdir(parents=True, exist_ok=True)
     infos = [run_info(r) if (Path(r) / "config.json").is_file() else None for r in args.runs]
-    if all(i is not None and i["env"] == "liquidation" for i in infos):
-        written = liquidation_figures(args.runs, infos, labels, out, args.block, args.last)
+    envs = {i["env"] if i is not None else None for i in infos}
+    if envs == {"liquidation"}:
+        written = liquidation_figures(args.runs, infos, labels, out, args.block, args.last or 1000)
+    elif envs == {"push"}:
+        written = push_figures(args.runs, labels, out, args.last or 20)
     else:
         written = plot_runs(args.runs, labels, out, logy_steps=not args.linear)
     for path in written:

@@ -1,9 +1,11 @@
 """The pybullet block-pushing env, its scripted oracle and its gymnasium adapter."""
 import io
 import math
+import warnings
 
 import gymnasium as gym
 import numpy as np
+import pandas as pd
 import pybullet as pb
 import pytest
 import torch
@@ -54,6 +56,7 @@ def test_reward_is_two_minus_distance_and_the_goal_ends_the_episode():
         if bool(nxt["terminated"]):
             break
         assert float(nxt["reward"]) == pytest.approx(2.0 - dist, abs=1e-12)
+        assert float(nxt["distance"]) == pytest.approx(dist, abs=1e-12)
         assert not nxt["success"].item() and math.dist(block[:2].tolist(), [0.55, 0.0]) > 0.1
     assert nxt["terminated"].item() and nxt["success"].item() and not nxt["fell_off"].item()
     assert float(nxt["reward"]) == 2.0 and math.dist(block[:2].tolist(), [0.55, 0.0]) <= 0.1
@@ -169,7 +172,7 @@ def test_oracle_lines_up_from_the_side():
 
 def test_random_agent_rarely_succeeds_and_rows_carry_success_and_fell_off():
     rows = run_rows([0, 1], episodes=2, agent="random", max_steps=20)
-    assert {"success", "fell_off"} <= set(rows.columns)
+    assert {"success", "fell_off", "distance"} <= set(rows.columns)
     assert not rows["success"].any()                          # 1 m in 20 random moves: no
     assert ((rows["steps"] == 20) | rows["terminated"]).all()
 
@@ -186,7 +189,9 @@ def test_gymnasium_adapter_is_the_same_env():
     """gym.make's env with reset(seed=3) steps exactly as seed 3 of PushEnv; the checker passes."""
     from gymnasium.utils.env_checker import check_env
     env = gym.make(ENV_ID, max_steps=12)
-    check_env(env.unwrapped)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")      # e.g. "not equal although similar": a reset that is not exact
+        check_env(env.unwrapped)
     obs, info = env.reset(seed=3)
     ours = PushEnv([3], max_steps=12)
     assert np.array_equal(obs, ours.reset()["observation"][0].numpy()) and info == dict(success=False, fell_off=False)
@@ -199,3 +204,21 @@ def test_gymnasium_adapter_is_the_same_env():
         env.step(7)
     env.close()
     ours.close()
+
+
+def test_plot_table_counts_successes_in_the_last_episodes(tmp_path):
+    """push.md by hand: seed 0 succeeds in episodes 2-3 (10 and 12 steps), seed 1 never; over
+    the last 2 episodes: 2 of 4 successes, 11 steps; first success: seed 0 at 2, seed 1
+    never, so the median over seeds counts it as never."""
+    from tests.test_run import load_script
+    run = tmp_path / "r"
+    run.mkdir()
+    rows = [(0, 1, 50, False), (0, 2, 10, True), (0, 3, 12, True), (1, 1, 50, False), (1, 2, 50, False),
+            (1, 3, 49, False)]
+    pd.DataFrame([dict(seed=s, episode=e, steps=n, success=w, fell_off=False, wall_s=0.1 * n, distance=0.0)
+                  for s, e, n, w in rows]).to_csv(run / "episodes.csv", index=False)
+    plot = load_script("plot")
+    text = plot.push_table([pd.read_csv(run / "episodes.csv")], ["r"], last=2)
+    cells = [c.strip() for c in text.splitlines()[2].split("|")]
+    assert cells[3:7] == ["50.0%", "11.0", "0.0%", "never (1 never)"]
+    assert cells[8] == "100.00"                                # 0.1 s per step
