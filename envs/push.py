@@ -12,7 +12,9 @@ Actions 0..3 move the pusher's target ``step_size`` north / south / east / west
 (+y / -y / +x / -x), plus uniform noise in [-noise, noise] on the moved axis from
 the seed's own stream, clipped to the workspace (the table plus 0.1 m). Over the
 action's ``substeps`` physics steps the target moves in a straight line, so the
-pusher sweeps the path and drives the block by contact.
+pusher sweeps the path and drives the block by contact; ``settle_substeps`` more
+with the target still let the pusher catch up and the block stop sliding, so the
+observation (positions only) describes a state at rest.
 
 Observation (6, float64): pusher xyz, block xyz (world frame, metres; clipped to
 the spec's box). Reward: 2 at the goal (block within ``goal_radius`` of ``goal``
@@ -68,6 +70,7 @@ BLOCK_HALF = 0.025           # cube_small.urdf
 PUSHER_HALF = 0.04           # cube.urdf at globalScaling 2 * PUSHER_HALF
 BLOCK_Z = TABLE_TOP + BLOCK_HALF
 PUSHER_Z = TABLE_TOP + PUSHER_HALF + 0.003   # clear of the table, level with the block's side
+ERP = 0.8                   # constraint error reduction per physics step (pybullet: 0.2)
 SETTLE_STEPS = 30           # physics steps before the snapshot every episode starts from
 WORKSPACE = (TABLE_HALF[0] + 0.1, TABLE_HALF[1] + 0.1)
 # Observation box: the pusher stays in the workspace; the block is reported up to 0.5 m
@@ -90,7 +93,9 @@ class PushConfig:
     goal_radius: float = setting(0.1, "terminated (success) with the block within this distance of the goal")
     block_start: Tuple[float, ...] = setting((-0.45, 0.0), "block's start x,y")
     pusher_start: Tuple[float, ...] = setting((-0.55, 0.0), "pusher's start x,y (behind the block)")
-    substeps: int = setting(24, "physics steps per action (the pusher's target moves along them)")
+    substeps: int = setting(24, "physics steps per action in which the pusher's target moves")
+    settle_substeps: int = setting(8, "physics steps after them with the target still, so the pusher "
+                                      "reaches it and the block stops: the observation is a state at rest")
     time_step: float = setting(1.0 / 120.0, "physics time step, seconds (24 x 1/120: 0.2 s, 0.5 m/s a move)")
     solver_iterations: int = setting(20, "Bullet's constraint-solver iterations per physics step")
     push_force: float = setting(50.0, "largest force of the constraint holding the pusher, newtons")
@@ -103,6 +108,8 @@ class PushConfig:
         for name in ("max_steps", "step_size", "goal_radius", "substeps", "time_step", "solver_iterations",
                      "push_force"):
             positive(name)
+        if not (isinstance(self.settle_substeps, int) and self.settle_substeps >= 0):
+            raise ValueError(f"settle_substeps must be an integer >= 0, got {self.settle_substeps}")
         if not (math.isfinite(self.noise) and 0 <= self.noise < self.step_size):
             raise ValueError(f"noise must be in [0, step_size), got {self.noise}")
         for name in ("goal", "block_start", "pusher_start"):
@@ -134,9 +141,11 @@ class _World:
             raise RuntimeError("pybullet could not open a DIRECT client")
         pb.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=c)
         pb.setGravity(0.0, 0.0, -9.81, physicsClientId=c)
-        # deterministicOverlappingPairs: contact order independent of memory layout
+        # deterministicOverlappingPairs: contact order independent of memory layout. erp: at
+        # pybullet's 0.2 the pusher trails its moving target by ~17 mm and creeps after it for
+        # many steps; at 0.8 it keeps within ~1 mm and stops with its target.
         pb.setPhysicsEngineParameter(fixedTimeStep=cfg.time_step, numSolverIterations=cfg.solver_iterations,
-                                     deterministicOverlappingPairs=1, physicsClientId=c)
+                                     deterministicOverlappingPairs=1, erp=ERP, physicsClientId=c)
         pb.loadURDF("plane.urdf", physicsClientId=c)
         pb.loadURDF("table/table.urdf", useFixedBase=True, physicsClientId=c)
         self.block = pb.loadURDF("cube_small.urdf", [*cfg.block_start, BLOCK_Z], physicsClientId=c)
@@ -157,14 +166,17 @@ class _World:
         pb.restoreState(self.snapshot, physicsClientId=self.client)
         pb.changeConstraint(self.constraint, self.start, maxForce=self.force, physicsClientId=self.client)
 
-    def move(self, start, end, substeps: int) -> None:
-        """Sweep the pusher's target from ``start`` to ``end`` (xyz lists) in ``substeps`` steps."""
+    def move(self, start, end, substeps: int, settle: int) -> None:
+        """Sweep the pusher's target from ``start`` to ``end`` (xyz lists) in ``substeps``
+        physics steps, then hold it there for ``settle`` more."""
         c, cid, force = self.client, self.constraint, self.force
         change, step = pb.changeConstraint, pb.stepSimulation
         (x0, y0, z), (x1, y1, _) = start, end
         for k in range(1, substeps + 1):
             f = k / substeps
             change(cid, (x0 + f * (x1 - x0), y0 + f * (y1 - y0), z), maxForce=force, physicsClientId=c)
+            step(physicsClientId=c)
+        for _ in range(settle):
             step(physicsClientId=c)
 
     def positions(self):
@@ -253,7 +265,7 @@ class PushEnv(SeedBatchedEnv):
         xy = start[:, :2] + self.moves[action] * (cfg.step_size + jitter)
         self.target[:, :2] = torch.maximum(torch.minimum(xy, self.workspace), -self.workspace)
         for world, a, b in zip(self.worlds, start.tolist(), self.target.tolist()):
-            world.move(a, b, cfg.substeps)
+            world.move(a, b, cfg.substeps, cfg.settle_substeps)
         obs = self._observe()
         block = obs[:, 3:]
         off = ((block[:, 0].abs() > TABLE_HALF[0]) | (block[:, 1].abs() > TABLE_HALF[1])

@@ -75,6 +75,46 @@ def test_pushing_the_block_off_the_table_is_terminal_but_no_success():
     env.close()
 
 
+def test_a_block_off_the_table_is_no_success_even_within_the_goal_radius():
+    """Goal at the east edge: a block placed just past the edge, 0.06 m from the goal, falls;
+    the step is fell_off, not success."""
+    env = PushEnv([0], goal=(0.70, 0.0), goal_radius=0.1, noise=0.0)
+    env.reset()
+    w = env.worlds[0]
+    pb.resetBasePositionAndOrientation(w.block, [0.76, 0.0, 0.65], [0, 0, 0, 1], physicsClientId=w.client)
+    nxt = step(env, [W])
+    assert nxt["fell_off"].item() and not nxt["success"].item() and nxt["terminated"].item()
+    assert float(nxt["reward"]) < 2.0
+    env.close()
+
+
+def test_moves_are_step_size_on_one_axis_with_noise_and_clipped_to_the_workspace():
+    """Noise 0: three moves north in free space put the pusher 0.3 m north (within 2 mm; it
+    tracks its target and stops with it). Noise 0.05: the moved axis changes by 0.1 +- 0.05
+    per move, the other not at all. Five moves west from x = -0.55 stop at the workspace's
+    edge, x = -0.85."""
+    env = PushEnv([0], noise=0.0)
+    env.reset()
+    for _ in range(3):
+        step(env, [N])
+    x, y = env.worlds[0].positions()[:2]
+    assert abs(y - 0.3) < 2e-3 and abs(x + 0.55) < 1e-3
+    noisy = PushEnv([0], noise=0.05)
+    noisy.reset()
+    ys = [0.0]
+    for _ in range(4):
+        step(noisy, [N])
+        assert float(noisy.target[0, 0]) == -0.55
+        ys.append(float(noisy.target[0, 1]))
+    moves = np.diff(ys)
+    assert ((moves >= 0.05) & (moves <= 0.15)).all() and moves.std() > 0.005
+    for _ in range(5):
+        step(env, [W])
+    assert float(env.target[0, 0]) == pytest.approx(-0.85) and abs(env.worlds[0].positions()[0] + 0.85) < 2e-3
+    env.close()
+    noisy.close()
+
+
 def test_the_step_cap_truncates():
     env = PushEnv([0], max_steps=3)
     env.reset()
