@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 import sys
 
 from trl_dgpq.collectors import runner
@@ -87,9 +88,22 @@ def main(argv=None) -> int:
         return 130
 
 
+def attach_negative_lists(argv):
+    """argparse reads ``--goal -0.3,0.2`` as two options (only plain negative numbers pass);
+    join such a comma list of numbers to its flag: ``--goal=-0.3,0.2``."""
+    out = []
+    for token in argv:
+        if (out and out[-1].startswith("--") and "=" not in out[-1]
+                and re.fullmatch(r"-[\d.][\d.eE+-]*(,\s*-?[\d.][\d.eE+-]*)+,?", token)):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
+
+
 def _main(argv=None) -> int:
     parser = make_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(attach_negative_lists(sys.argv[1:] if argv is None else list(argv)))
     settings = given_settings(args, parser)
     try:
         if args.resume:

@@ -205,3 +205,16 @@ def test_liquidation_figures_and_table_pair_runs_by_seed_and_episode(tmp_path):
             (tmp_path / "fig" / "comparison.md").read_text().splitlines() if line.startswith("| ")}
     assert rows["opt"][5].strip() == "1.000"
     assert float(rows["twap"][5]) == pytest.approx(expected, abs=5e-4)
+
+
+def test_a_negative_comma_list_is_a_flag_value(tmp_path):
+    """argparse would read '-0.3,0.2' as an option; it is joined to its flag. Plain negative
+    numbers (argparse's own case), options and other values are left alone."""
+    argv = ["--block-start", "-0.3,0.2", "--pusher-start", "0,-0.3", "--lam", "-1", "--goal", "-1e-2,-0.5",
+            "--overwrite", "--seeds", "3-7"]
+    assert train.attach_negative_lists(argv) == [
+        "--block-start=-0.3,0.2", "--pusher-start", "0,-0.3", "--lam", "-1", "--goal=-1e-2,-0.5", "--overwrite",
+        "--seeds", "3-7"]
+    assert run("--env", "push", "--agent", "oracle", "--seeds", 1, "--episodes", 1, "--max-steps", 3,
+               "--block-start", "-0.3,0.2", "--out", tmp_path / "p") == 0
+    assert json.loads((tmp_path / "p" / "config.json").read_text())["env"]["block_start"] == [-0.3, 0.2]
