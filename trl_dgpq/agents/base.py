@@ -45,3 +45,23 @@ class Agent(Protocol):
 
     def load_state_dict(self, state: dict) -> None:
         ...
+
+
+class ScriptedAgent:
+    """Base of non-learning agents (scripted policies): nothing to learn, store or save."""
+
+    @staticmethod
+    def memory_bytes(cfg, env, num_seeds: int) -> int:
+        return 0
+
+    def observe(self, td, active=None) -> None:
+        pass
+
+    def episode_stats(self) -> dict:
+        return {}
+
+    def state_dict(self) -> dict:
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        pass

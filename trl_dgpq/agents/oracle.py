@@ -16,6 +16,7 @@ import torch
 
 from ..config import setting
 from ..envs.push import BLOCK_HALF, PUSHER_HALF, PushEnv
+from .base import ScriptedAgent
 
 CONTACT = PUSHER_HALF + BLOCK_HALF  # centre distance at which pusher and block touch
 # Action index of moving +1 / -1 along axis 0 (x) and axis 1 (y): E, W and N, S.
@@ -34,7 +35,7 @@ class OracleConfig:
         return self
 
 
-class OraclePusher:
+class OraclePusher(ScriptedAgent):
     Config = OracleConfig
 
     def __init__(self, cfg: OracleConfig, goal: torch.Tensor):
@@ -50,10 +51,6 @@ class OraclePusher:
     def make(cls, cfg, env, seeds):
         cls.resolve_config(cfg, env)
         return cls(cfg, env.goal[:2].cpu())
-
-    @staticmethod
-    def memory_bytes(cfg, env, num_seeds: int) -> int:
-        return 0
 
     def act(self, td) -> torch.Tensor:
         obs = td.get("observation").to(torch.float64)
@@ -74,15 +71,3 @@ class OraclePusher:
         action = torch.where(clear, back, across_away)
         action = torch.where(well_behind, across_to_line, action)
         return torch.where(touching_or_behind & lined_up, toward, action).to(obs.device)
-
-    def observe(self, td, active=None) -> None:
-        pass
-
-    def episode_stats(self) -> dict:
-        return {}
-
-    def state_dict(self) -> dict:
-        return {}
-
-    def load_state_dict(self, state: dict) -> None:
-        pass

@@ -13,6 +13,7 @@ import torch
 
 from ..almgren_chriss import ACModel
 from ..envs.liquidation import LiquidationEnv
+from .base import ScriptedAgent
 
 
 @dataclass
@@ -23,7 +24,7 @@ class ScheduleConfig:
         return self
 
 
-class SchedulePolicy:
+class SchedulePolicy(ScriptedAgent):
     """Sells ``fractions[k]`` of the remaining shares at trade k + 1 (a tensor (N,))."""
 
     Config = ScheduleConfig
@@ -49,26 +50,10 @@ class SchedulePolicy:
     def schedule(model: ACModel) -> torch.Tensor:
         raise NotImplementedError
 
-    @staticmethod
-    def memory_bytes(cfg, env, num_seeds: int) -> int:
-        return 0
-
     def act(self, td) -> torch.Tensor:
         left = td.get("observation")[:, -2].to(torch.float64)              # trades left / N
         k = (self.trades - torch.round(left * self.trades)).long().clamp(0, self.trades - 1)
         return self.fractions[k][:, None]
-
-    def observe(self, td, active=None) -> None:
-        pass
-
-    def episode_stats(self) -> dict:
-        return {}
-
-    def state_dict(self) -> dict:
-        return {}
-
-    def load_state_dict(self, state: dict) -> None:
-        pass
 
 
 class ACOptimalPolicy(SchedulePolicy):
