@@ -136,9 +136,17 @@ class _World:
     snapshot every episode starts from."""
 
     def __init__(self, cfg: PushConfig):
-        self.client = c = pb.connect(pb.DIRECT)
-        if c < 0:
+        self.client = pb.connect(pb.DIRECT)
+        if self.client < 0:
             raise RuntimeError("pybullet could not open a DIRECT client")
+        try:
+            self._build(cfg)
+        except BaseException:
+            self.close()
+            raise
+
+    def _build(self, cfg: PushConfig) -> None:
+        c = self.client
         pb.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=c)
         pb.setGravity(0.0, 0.0, -9.81, physicsClientId=c)
         # deterministicOverlappingPairs: contact order independent of memory layout. erp: at
@@ -186,23 +194,21 @@ class _World:
 
     def save(self) -> torch.Tensor:
         """The physics state as the bytes of a .bullet file (uint8 tensor)."""
-        fd, path = tempfile.mkstemp(suffix=".bullet")
-        os.close(fd)
-        try:
+        with tempfile.TemporaryDirectory() as folder:
+            path = os.path.join(folder, "state.bullet")
             pb.saveBullet(path, physicsClientId=self.client)
             with open(path, "rb") as f:
-                return torch.frombuffer(bytearray(f.read()), dtype=torch.uint8)
-        finally:
-            os.unlink(path)
+                data = f.read()
+        if not data:
+            raise RuntimeError("pybullet saved an empty state")
+        return torch.frombuffer(bytearray(data), dtype=torch.uint8)
 
     def load(self, data: torch.Tensor, target) -> None:
-        fd, path = tempfile.mkstemp(suffix=".bullet")
-        try:
-            with os.fdopen(fd, "wb") as f:
+        with tempfile.TemporaryDirectory() as folder:
+            path = os.path.join(folder, "state.bullet")
+            with open(path, "wb") as f:
                 f.write(data.numpy().tobytes())
             pb.restoreState(fileName=path, physicsClientId=self.client)
-        finally:
-            os.unlink(path)
         pb.changeConstraint(self.constraint, target, maxForce=self.force, physicsClientId=self.client)
 
     def close(self) -> None:
@@ -223,7 +229,13 @@ class PushEnv(SeedBatchedEnv):
         super().__init__(seeds, cfg, device, **overrides)
         cfg = self.cfg
         f64 = dict(dtype=torch.float64, device=self.device)
-        self.worlds = [_World(cfg) for _ in self.seeds]
+        self.worlds = []
+        try:
+            for _ in self.seeds:
+                self.worlds.append(_World(cfg))
+        except BaseException:           # no client outlives a failed construction
+            self.close()
+            raise
         self.start = torch.tensor([*cfg.pusher_start, PUSHER_Z], **f64)
         self.target = self.start.repeat(self.num_seeds, 1)          # the constraint's target, (S, 3)
         self.goal = torch.tensor([*cfg.goal, BLOCK_Z], **f64)

@@ -9,7 +9,9 @@ streams), with numpy observations and ``Discrete(4)`` actions. Registered as
     obs, info = env.reset(seed=3)                           # seed 3 = seed 3 of a batched run
 
 ``reset(seed=s)`` re-keys the env's random stream to seed s (as ``--seeds s`` does);
-without a seed, the stream goes on. ``info`` holds ``success`` and ``fell_off``.
+without a seed, the stream goes on. ``info`` holds ``success``, ``fell_off`` and
+``distance`` (block to goal). Stepping before ``reset()`` or after the episode ended
+raises. There is no rendering (``render_mode`` must be None).
 The env truncates at ``max_steps`` itself, so it is registered without a TimeLimit.
 """
 from __future__ import annotations
@@ -28,7 +30,11 @@ ENV_ID = "trl_dgpq/BlockPush-v0"
 class GymPushEnv(gym.Env):
     metadata = {"render_modes": []}
 
-    def __init__(self, seed: int = 0, **settings):
+    def __init__(self, seed: int = 0, render_mode: str | None = None, **settings):
+        if render_mode is not None:
+            raise ValueError(f"trl_dgpq/BlockPush-v0 does not render (pybullet runs headless), got "
+                             f"render_mode={render_mode!r}")
+        self.render_mode = None
         self.env = PushEnv([seed], **settings)
         self.observation_space = spaces.Box(np.array(OBS_LOW), np.array(OBS_HIGH), dtype=np.float64)
         self.action_space = spaces.Discrete(len(MOVES))
@@ -45,7 +51,7 @@ class GymPushEnv(gym.Env):
     def step(self, action):
         if not self._running:
             raise RuntimeError("call reset() before step(), and again after an episode ends")
-        if not self.action_space.contains(action):
+        if isinstance(action, (bool, np.bool_)) or not self.action_space.contains(action):
             raise ValueError(f"action must be an integer in [0, {self.action_space.n}), got {action!r}")
         td = TensorDict({"action": torch.tensor([int(action)])}, batch_size=[1])
         nxt = self.env.step(td).get("next")
@@ -56,7 +62,8 @@ class GymPushEnv(gym.Env):
 
     @staticmethod
     def _info(td) -> dict:
-        return {"success": bool(td.get("success")[0]), "fell_off": bool(td.get("fell_off")[0])}
+        return {"success": bool(td.get("success")[0]), "fell_off": bool(td.get("fell_off")[0]),
+                "distance": float(td.get("distance")[0])}
 
     def close(self):
         self.env.close()

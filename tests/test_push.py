@@ -210,6 +210,16 @@ def test_oracle_lines_up_from_the_side():
     assert rows["success"].all() and (rows["steps"] > 15).all()
 
 
+def test_oracle_on_a_diagonal_and_its_limits():
+    """Corner to opposite corner: x then y, no thrashing between axes. A goal smaller than a
+    move, or moves wider than it can line up in, are refused (it would cycle forever)."""
+    rows = run_rows([0, 1, 2, 3], agent="oracle", block_start=(-0.7, 0.45), goal=(0.55, -0.4), max_steps=100)
+    assert rows["success"].all() and (rows["steps"] < 60).all()
+    for bad in (dict(goal_radius=0.05), dict(step_size=0.2, goal_radius=0.2)):
+        with pytest.raises(ValueError, match="oracle"):
+            resolve_config(env="push", agent="oracle", **bad)
+
+
 def test_random_agent_rarely_succeeds_and_rows_carry_success_and_fell_off():
     rows = run_rows([0, 1], episodes=2, agent="random", max_steps=20)
     assert {"success", "fell_off", "distance"} <= set(rows.columns)
@@ -234,16 +244,58 @@ def test_gymnasium_adapter_is_the_same_env():
         check_env(env.unwrapped)
     obs, info = env.reset(seed=3)
     ours = PushEnv([3], max_steps=12)
-    assert np.array_equal(obs, ours.reset()["observation"][0].numpy()) and info == dict(success=False, fell_off=False)
+    first = ours.reset()
+    assert np.array_equal(obs, first["observation"][0].numpy())
+    assert info == dict(success=False, fell_off=False, distance=float(first["distance"][0]))
     for a in [E, E, N, E, S, E]:
         obs, reward, terminated, truncated, info = env.step(a)
         nxt = step(ours, [a])
         assert np.array_equal(obs, nxt["observation"][0].numpy()) and reward == float(nxt["reward"])
         assert (terminated, truncated) == (bool(nxt["terminated"]), bool(nxt["truncated"]))
-    with pytest.raises(ValueError):
-        env.step(7)
+    for bad in (7, -1, True, 1.5):
+        with pytest.raises(ValueError):
+            env.step(bad)
     env.close()
     ours.close()
+
+
+@pytest.mark.filterwarnings("ignore:.*render_mode")
+def test_gymnasium_adapter_episode_boundaries_and_streams():
+    """Stepping after the episode ended raises until reset(); an unseeded reset goes on with
+    the stream (other noise), a seeded one starts it again."""
+    env = gym.make(ENV_ID, max_steps=2).unwrapped
+    with pytest.raises(RuntimeError):
+        env.step(E)
+    env.reset(seed=5)
+    first = [env.step(E)[0] for _ in range(2)]
+    with pytest.raises(RuntimeError):
+        env.step(E)
+    env.reset()
+    assert not np.array_equal(env.step(E)[0], first[0])          # the stream went on
+    env.reset(seed=5)
+    assert np.array_equal(env.step(E)[0], first[0])
+    with pytest.raises(ValueError, match="render"):
+        gym.make(ENV_ID, render_mode="human")
+    env.close()
+
+
+def test_a_failed_construction_leaves_no_client_connected(monkeypatch):
+    from trl_dgpq.envs import push
+
+    def connected():
+        return sum(pb.isConnected(i) for i in range(512))
+    before, built = connected(), []
+    build = push._World._build
+
+    def flaky(self, cfg):
+        built.append(self.client)
+        if len(built) == 2:
+            raise RuntimeError("injected")
+        build(self, cfg)
+    monkeypatch.setattr(push._World, "_build", flaky)
+    with pytest.raises(RuntimeError, match="injected"):
+        PushEnv([0, 1, 2])
+    assert len(built) == 2 and connected() == before
 
 
 def test_plot_table_counts_successes_in_the_last_episodes(tmp_path):

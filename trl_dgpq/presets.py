@@ -48,8 +48,9 @@ PRESETS = {
                                       noise_var=0.144, sigma_tol2=None, eps1=None, covering="unit-square")},
     },
     # Block pushing (SPEC 3.3; README "Block pushing").
-    # State scaled to the unit box: the table's 1.5 x 1.0 m top maps to [0, 1]^2 for the pusher's
-    # and the block's x, y; the heights are dropped (constant while the block is on the table).
+    # State scaled to a box of side 1: the table's 1.5 x 1.0 m top maps to [-0.5, 0.5]^2 (only
+    # distances matter) for the pusher's and the block's x, y; the heights are dropped (constant
+    # while the block is on the table).
     # L_Q = 1.5: the reward changes by 1 per metre of the block, 1.5 per unit of scaled x (with the
     # square's L_Q = 1, Q̂ undercuts the true Q and no seed learnt the task in 40 episodes). Both
     # presets use the exact GP, so the kernel is their only difference.

@@ -1,8 +1,9 @@
 """A scripted pusher for the block-pushing env (``oracle``): the reference line of
 the push experiments and a proof that the task can be solved.
 
-Per seed, from the observation alone: push the block along the axis on which it
-is farthest from the goal. If the pusher is behind the block on that axis (on
+Per seed, from the observation alone: push the block along x until it is within
+goal_radius / sqrt(2) of the goal's x, then along y (a fixed order: choosing the
+farther axis each step thrashes on diagonals, each switch costing a detour). If the pusher is behind the block on that axis (on
 the side away from the goal) and lined up with it, move toward the goal; behind
 but not lined up, slide sideways onto the block's line; not behind, step clear
 of the block sideways and then back past it. All seeds at once, with masks.
@@ -38,25 +39,36 @@ class OracleConfig:
 class OraclePusher(ScriptedAgent):
     Config = OracleConfig
 
-    def __init__(self, cfg: OracleConfig, goal: torch.Tensor):
-        self.cfg, self.goal = cfg, goal.to(torch.float64)
+    def __init__(self, cfg: OracleConfig, goal: torch.Tensor, tol: float):
+        self.cfg, self.goal, self.tol = cfg, goal.to(torch.float64), tol
 
     @classmethod
     def resolve_config(cls, cfg, env):
         if not isinstance(env, PushEnv):
             raise ValueError("oracle is the scripted pusher of the block-pushing env: use --env push")
-        return cfg.check()
+        cfg.check()
+        move = env.cfg.step_size
+        # A push moves the block about a move: to land within tol of the goal on each axis,
+        # 2 tol must span a move; to slide onto the block's line, 2 align_tol must too (noise
+        # can only help it out of a cycle).
+        if env.cfg.goal_radius / 2 ** 0.5 < move / 2:
+            raise ValueError(f"oracle pushes in moves of {move:g}: it needs goal_radius >= {move / 2 ** 0.5:.3g} "
+                             f"(step_size / sqrt 2), got {env.cfg.goal_radius}")
+        if 2 * cfg.align_tol < move:
+            raise ValueError(f"oracle lines up in moves of {move:g}: it needs align_tol >= {move / 2:g}, got "
+                             f"{cfg.align_tol} (and align_tol < {CONTACT}, so step_size <= {2 * CONTACT:g})")
+        return cfg
 
     @classmethod
     def make(cls, cfg, env, seeds):
         cls.resolve_config(cfg, env)
-        return cls(cfg, env.goal[:2].cpu())
+        return cls(cfg, env.goal[:2].cpu(), env.cfg.goal_radius / 2 ** 0.5)
 
     def act(self, td) -> torch.Tensor:
         obs = td.get("observation").to(torch.float64)
         pusher, block = obs[:, 0:2], obs[:, 3:5]
         to_goal = self.goal.to(obs.device) - block
-        axis = to_goal.abs().argmax(-1)                                   # (S,) the axis to push along
+        axis = (to_goal[:, 0].abs() <= self.tol).long()                   # (S,) x first, then y
         rows = torch.arange(len(obs), device=obs.device)
         sign = torch.where(to_goal[rows, axis] >= 0, 1.0, -1.0).to(obs.dtype)
         ahead = (pusher[rows, axis] - block[rows, axis]) * sign          # > 0: pusher on the goal's side
