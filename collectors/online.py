@@ -29,6 +29,10 @@ import torch
 from tensordict import TensorDict
 from tqdm.auto import tqdm
 
+class NonFiniteError(FloatingPointError):
+    """The env produced NaN or inf."""
+
+
 COLUMNS = ["seed", "episode", "steps", "return", "terminated", "wall_s", "cpu_s", "us_per_step"]
 
 
@@ -92,6 +96,7 @@ class OnlineCollector:
             steps_here += 1
             nxt = td.get("next")
             r = nxt.get("reward").reshape(S).to(torch.float64)
+            self._check_finite(r, nxt.get("observation"), active)
             n_active = int(active.sum())
             self.steps += active
             self.ret += torch.where(active, r, 0.0)
@@ -111,6 +116,19 @@ class OnlineCollector:
                 break
         bar.close()
         return frame(rows)
+
+    def _check_finite(self, reward, obs, active) -> None:
+        """A NaN or inf from the env stops the run here, naming where (it would otherwise
+        poison the learner silently)."""
+        bad = ~torch.isfinite(reward)
+        if obs.is_floating_point():
+            bad |= ~torch.isfinite(obs.reshape(len(reward), -1)).all(-1)
+        bad &= active
+        if bad.any():
+            i = int(bad.nonzero()[0, 0])
+            what = "reward" if not torch.isfinite(reward[i]) else "observation"
+            raise NonFiniteError(f"the env returned a non-finite {what} for seed {self.seeds[i]}, episode "
+                                 f"{int(self.episode[i]) + 1}, step {int(self.steps[i]) + 1}")
 
     def _finish(self, ended: torch.Tensor, nxt) -> List[dict]:
         """Rows of the episodes that just ended (``nxt``: the step's "next" entries, before

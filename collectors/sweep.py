@@ -1,0 +1,327 @@
+"""Sweeps: several experiments, each one's seeds split into jobs, run on a pool of
+worker processes on this machine or as Ray tasks on a cluster.
+
+    OUT/sweep.json                   the experiments as resolved and the jobs (written once)
+    OUT/<experiment>/config.json     the experiment's resolved config (all its seeds)
+    OUT/<experiment>/jobs/j000/      a job: an ordinary run folder (see runner.py) for one
+                                     slice of the seeds: its own rows, checkpoint, status
+    OUT/<experiment>/episodes.csv    the jobs' rows, merged and sorted, with a ``job`` column;
+                                     written once every job of the experiment has finished
+    OUT/report.json                  each job's outcome (finished, failed, killed) and wall time
+
+A job is (config, seeds): the lock-step batched loop over those seeds, in one process
+with torch at one thread. Why one: a pool of N workers already fills N cores, and the
+per-step tensors are small, so intra-op threads would only oversubscribe the cores.
+Seeds never depend on their batch, so how they are split into jobs changes no row.
+
+A job that dies (killed, out of memory, an exception, a NaN from the env) is reported
+with its seeds and reason; the others run on and keep their rows. ``resume`` reruns
+only the jobs that have not finished, each from its own last checkpoint.
+"""
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import shutil
+import signal
+import sys
+import time
+import tomllib
+from dataclasses import dataclass
+from multiprocessing.connection import wait
+from pathlib import Path
+from typing import Callable, Dict, List, Optional
+
+import pandas as pd
+
+from . import runner
+from .experiment import TIMING_COLUMNS, describe, resolve_config
+
+SWEEP, REPORT = "sweep.json", "report.json"
+EXPERIMENT_KEYS = {"name", "env", "agent", "preset", "seeds", "episodes", "checkpoint_every", "set"}
+BACKENDS = ("local", "ray")
+
+
+class SweepError(ValueError):
+    """Something wrong with what was asked (one line, exit 2)."""
+
+
+@dataclass
+class Job:
+    experiment: str
+    index: int
+    seeds: List[int]
+    folder: str          # the job's run folder
+    config: dict         # the experiment's config with run.seeds = this job's seeds
+
+    @property
+    def name(self) -> str:
+        return f"{self.experiment} job {self.index} (seeds {_span(self.seeds)})"
+
+
+def _span(seeds: List[int]) -> str:
+    return f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 1 \
+        else ",".join(map(str, seeds))
+
+
+# ------------------------------------------------------------------ the sweep file
+def read_sweep_file(path) -> Dict[str, dict]:
+    """{experiment name: resolved config} from a TOML file; every experiment is checked
+    before anything runs, and a bad one is refused with one line naming it.
+
+        [defaults]               # optional, under every experiment
+        episodes = 50
+        [[experiment]]
+        name = "square-shaped"   # a folder name
+        env = "square"           # env, agent, preset, seeds, episodes, checkpoint_every
+        agent = "dgpq"
+        seeds = "0-63"
+        [experiment.set]         # any other setting, by name or dotted path
+        noise_var = 0.2
+    """
+    try:
+        data = tomllib.loads(Path(path).read_text())
+    except OSError as err:
+        raise SweepError(f"cannot read {path}: {err.strerror}") from None
+    except tomllib.TOMLDecodeError as err:
+        raise SweepError(f"{path}: not valid TOML: {err}") from None
+    unknown = set(data) - {"defaults", "experiment"}
+    if unknown:
+        raise SweepError(f"{path}: unknown tables {sorted(unknown)} (use [defaults] and [[experiment]])")
+    experiments = data.get("experiment", [])
+    if not isinstance(experiments, list) or not experiments:
+        raise SweepError(f"{path}: no [[experiment]] entries")
+    defaults = data.get("defaults", {})
+    out = {}
+    for i, entry in enumerate(experiments):
+        entry = {**defaults, **entry, "set": {**defaults.get("set", {}), **entry.get("set", {})}}
+        name = entry.get("name")
+        where = f"{path}: experiment {i + 1}" + (f" ({name!r})" if name else "")
+        bad = set(entry) - EXPERIMENT_KEYS
+        if bad:
+            raise SweepError(f"{where}: unknown keys {sorted(bad)}; settings go under [experiment.set]")
+        if not isinstance(name, str) or not name or Path(name).name != name or name.startswith("."):
+            raise SweepError(f"{where}: needs a name that can be a folder name, got {name!r}")
+        if name in out:
+            raise SweepError(f"{where}: the name {name!r} is used twice")
+        settings = {k: v for k, v in entry.items() if k not in ("name", "set")}
+        try:
+            out[name] = resolve_config({**settings, **entry["set"]})
+        except (ValueError, KeyError) as err:
+            raise SweepError(f"{where}: {err}") from None
+    return out
+
+
+def plan(experiments: Dict[str, dict], out, seeds_per_job: Optional[int]) -> List[Job]:
+    """Each experiment's seeds in slices of ``seeds_per_job`` (None: one job each)."""
+    if seeds_per_job is not None and seeds_per_job < 1:
+        raise SweepError(f"seeds_per_job must be >= 1, got {seeds_per_job}")
+    jobs = []
+    for name, config in experiments.items():
+        seeds = list(config["run"]["seeds"])
+        k = seeds_per_job or len(seeds)
+        for j, start in enumerate(range(0, len(seeds), k)):
+            part = seeds[start:start + k]
+            cfg = {**config, "run": {**config["run"], "seeds": part}}
+            jobs.append(Job(name, j, part, str(Path(out) / name / "jobs" / f"j{j:03d}"), cfg))
+    return jobs
+
+
+# ------------------------------------------------------------------ one job
+def run_job(config: dict, folder: str) -> None:
+    """Run (or continue) one job in this process, torch at one thread (see the module doc)."""
+    import torch
+    torch.set_num_threads(1)
+    path = runner.RunFolder(folder)
+    if path.file(runner.CONFIG).is_file():
+        status = (path.status() or {}).get("status")
+        if status == "finished":
+            return
+        runner.resume(path, runner.resumable_config(path), progress=False)
+    else:
+        path.path.mkdir(parents=True, exist_ok=True)
+        runner.start(config, path, progress=False)
+
+
+def _job_process(config: dict, folder: str) -> None:
+    """Entry point of a local worker process: one line on stderr instead of a traceback."""
+    try:
+        run_job(config, folder)
+    except runner.Interrupted as err:
+        sys.exit(err.exit_code)
+    except BaseException as err:  # noqa: BLE001 -- reported through the job's status.json too
+        print(f"job in {folder} failed: {type(err).__name__}: {err}", file=sys.stderr)
+        sys.exit(1)
+
+
+def outcome(job: Job, exitcode: Optional[int] = None, error: Optional[str] = None) -> dict:
+    """What became of a job, from its folder's status.json and how its process ended."""
+    status = runner.RunFolder(job.folder).status() or {}
+    state = status.get("status")
+    if state == "finished":
+        return dict(status="finished")
+    if state == "failed":
+        return dict(status="failed", reason=status.get("reason"))
+    if exitcode is not None and exitcode < 0:
+        return dict(status="killed", reason=f"killed by {signal.Signals(-exitcode).name}")
+    if state == "interrupted":
+        return dict(status="interrupted", reason=status.get("reason"))
+    return dict(status="failed", reason=error or f"exit code {exitcode}, status {state!r}")
+
+
+# ------------------------------------------------------------------ backends
+def run_local(jobs: List[Job], workers: int, on_done: Callable[[Job, dict], None]) -> None:
+    """Each job in its own process, ``workers`` at a time. A process per job, not a
+    ProcessPoolExecutor: a killed worker breaks the whole executor, here it loses one job.
+    Processes come from a forkserver that has imported the package once (fast starts,
+    and no fork of a process whose torch threads are running)."""
+    ctx = mp.get_context("forkserver")
+    ctx.set_forkserver_preload(["trl_dgpq.collectors.sweep"])
+    pending, running = list(jobs), {}
+    try:
+        while pending or running:
+            while pending and len(running) < workers:
+                job = pending.pop(0)
+                proc = ctx.Process(target=_job_process, args=(job.config, job.folder), name=job.name)
+                proc.start()
+                running[proc.sentinel] = (proc, job)
+            for sentinel in wait(list(running)):
+                proc, job = running.pop(sentinel)
+                proc.join()
+                on_done(job, outcome(job, proc.exitcode))
+    except KeyboardInterrupt:   # the workers got the SIGINT too: let them checkpoint and stop
+        for proc, job in running.values():
+            proc.join()
+            on_done(job, outcome(job, proc.exitcode))
+        raise
+
+
+def run_ray(jobs: List[Job], address: Optional[str], cpus_per_job: float,
+            on_done: Callable[[Job, dict], None]) -> None:
+    """One Ray task per job (``num_cpus`` each, no retries: a failure is reported, and
+    ``resume`` reruns it). Outputs go to the job folders, which must be on a path every
+    node can reach."""
+    try:
+        import ray
+    except ImportError:
+        raise SweepError('--backend ray needs Ray: pip install -e ".[ray]"') from None
+    address = address or os.environ.get("RAY_ADDRESS")
+    if not ray.is_initialized():
+        if address:
+            ray.init(address=address, log_to_driver=False)
+        else:   # a local instance, with this process's working directory and package
+            ray.init(num_cpus=os.cpu_count(), include_dashboard=False, log_to_driver=False)
+    task = ray.remote(num_cpus=cpus_per_job, max_retries=0)(run_job)
+    refs = {task.remote(job.config, job.folder): job for job in jobs}
+    while refs:
+        done, _ = ray.wait(list(refs), num_returns=1)
+        for ref in done:
+            job, error = refs.pop(ref), None
+            try:
+                ray.get(ref)
+            except Exception as err:  # noqa: BLE001 -- RayTaskError, WorkerCrashedError, ...
+                error = f"{type(err).__name__}: {str(err).strip().splitlines()[-1]}"
+            result = outcome(job, error=error)
+            if error and result["status"] == "failed" and "WorkerCrashed" in error:
+                result = dict(status="killed", reason=error)
+            on_done(job, result)
+
+
+# ------------------------------------------------------------------ the sweep
+def merge(out, name: str, jobs: List[Job]) -> Optional[pd.DataFrame]:
+    """The experiment's episodes.csv from its finished jobs (None unless all finished)."""
+    frames = []
+    for job in jobs:
+        folder = runner.RunFolder(job.folder)
+        if (folder.status() or {}).get("status") != "finished":
+            return None
+        frames.append(folder.episodes().assign(job=job.index))
+    df = pd.concat(frames, ignore_index=True).sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
+    exp = runner.RunFolder(Path(out) / name)
+    buf = df.to_csv(index=False).encode()
+    runner.atomic_write(exp.file(runner.EPISODES), lambda f: f.write(buf))
+    return df
+
+
+def create(out, experiments: Dict[str, dict], jobs: List[Job], overwrite: bool = False) -> None:
+    """Lay out a new sweep folder (refused if ``out`` holds anything, unless it holds a sweep
+    and ``overwrite``)."""
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        if not (out / SWEEP).is_file():
+            raise SweepError(f"--out {out} is not empty and holds no sweep: choose another folder")
+        if not overwrite:
+            raise SweepError(f"--out {out} holds a sweep: continue it with --resume {out}, replace it with "
+                             f"--overwrite, or choose another folder")
+        old = json.loads((out / SWEEP).read_text()).get("experiments", {})
+        for name in old:
+            shutil.rmtree(out / name, ignore_errors=True)
+        for f in (SWEEP, REPORT):
+            (out / f).unlink(missing_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
+    for name, config in experiments.items():
+        (out / name).mkdir()
+        runner.RunFolder(out / name).write_json(runner.CONFIG, {**config, **runner.provenance()})
+    runner.RunFolder(out).write_json(SWEEP, dict(experiments=experiments, jobs=[
+        dict(experiment=j.experiment, index=j.index, seeds=j.seeds, folder=str(Path(j.folder).relative_to(out)))
+        for j in jobs]))
+
+
+def load(out) -> tuple:
+    """(experiments, jobs) of the sweep in ``out``."""
+    out = Path(out)
+    try:
+        data = json.loads((out / SWEEP).read_text())
+    except FileNotFoundError:
+        raise SweepError(f"{out} holds no sweep to resume (no {SWEEP})") from None
+    experiments = data["experiments"]
+    jobs = [Job(j["experiment"], j["index"], j["seeds"], str(out / j["folder"]),
+                {**experiments[j["experiment"]], "run": {**experiments[j["experiment"]]["run"], "seeds": j["seeds"]}})
+            for j in data["jobs"]]
+    return experiments, jobs
+
+
+def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int] = None,
+            ray_address: Optional[str] = None, cpus_per_job: float = 1, log=print) -> dict:
+    """Run the jobs that have not finished; merge each experiment whose jobs all finished.
+    Returns the report {job name: outcome} (also in OUT/report.json)."""
+    if backend not in BACKENDS:
+        raise SweepError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    out = Path(out)
+    todo = [j for j in jobs if (runner.RunFolder(j.folder).status() or {}).get("status") != "finished"]
+    report = {j.name: dict(status="finished", seeds=j.seeds, note="finished before") for j in jobs if j not in todo}
+    t0, done = time.perf_counter(), [0]
+
+    def on_done(job: Job, result: dict) -> None:
+        done[0] += 1
+        report[job.name] = dict(**result, seeds=job.seeds, experiment=job.experiment, job=job.index,
+                                elapsed_s=round(time.perf_counter() - t0, 2))
+        line = f"[{done[0]}/{len(todo)}] {job.name}: {result['status']}"
+        log(line + (f" -- {result['reason']}" if result.get("reason") else ""))
+        runner.RunFolder(out).write_json(REPORT, report)
+
+    if todo:
+        if backend == "local":
+            run_local(todo, workers or os.cpu_count() or 1, on_done)
+        else:
+            run_ray(todo, ray_address, cpus_per_job, on_done)
+    for name in dict.fromkeys(j.experiment for j in jobs):
+        if merge(out, name, [j for j in jobs if j.experiment == name]) is not None:
+            log(f"{name}: all jobs finished -> {out / name / runner.EPISODES}")
+    runner.RunFolder(out).write_json(REPORT, report)
+    return report
+
+
+def describe_jobs(jobs: List[Job]) -> str:
+    names = dict.fromkeys(j.experiment for j in jobs)
+    return "; ".join(f"{n}: {describe(next(j.config for j in jobs if j.experiment == n))}, "
+                     f"{sum(len(j.seeds) for j in jobs if j.experiment == n)} seeds in "
+                     f"{sum(j.experiment == n for j in jobs)} jobs" for n in names)
+
+
+def frame_without_timing(path) -> pd.DataFrame:
+    """An episodes.csv without its timing columns, for comparing runs."""
+    return runner.read_csv_exact(path).drop(columns=list(TIMING_COLUMNS))
+
+

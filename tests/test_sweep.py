@@ -1,0 +1,188 @@
+"""Sweeps: jobs on a process pool and on Ray give the rows of one process; a dead job is
+reported and resumable while the others finish; bad input is refused before any job."""
+import json
+import os
+import signal
+import threading
+import time
+
+import pandas as pd
+import pytest
+
+from tests.test_run import load_script
+from trl_dgpq.collectors import runner, sweep
+from trl_dgpq.collectors.experiment import TIMING_COLUMNS
+
+SWEEP_FILE = """
+[defaults]
+seeds = "0-3"
+episodes = 3
+
+[[experiment]]
+name = "square"
+env = "square"
+agent = "dgpq"
+[experiment.set]
+max_steps = 30
+
+[[experiment]]
+name = "liq"
+env = "liquidation"
+agent = "dgpq"
+preset = "shortfall"
+[experiment.set]
+trades = 8
+horizon = 8
+"""
+
+
+def write(tmp_path, text=SWEEP_FILE, name="s.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def rows(path, keep_job=False):
+    df = runner.read_csv_exact(path).drop(columns=list(TIMING_COLUMNS))
+    return df if keep_job else df.drop(columns=["job"], errors="ignore")
+
+
+def one_process(config, folder):
+    """The experiment as one run, all seeds in one batch (what train.py does)."""
+    f = runner.RunFolder(folder)
+    f.path.mkdir(parents=True)
+    runner.start(config, f, progress=False)
+    return rows(f.file("episodes.csv"))
+
+
+def run_sweep(tmp_path, out, backend="local", workers=2, seeds_per_job=2, text=SWEEP_FILE):
+    experiments = sweep.read_sweep_file(write(tmp_path, text))
+    jobs = sweep.plan(experiments, out, seeds_per_job)
+    sweep.create(out, experiments, jobs)
+    return experiments, jobs, sweep.execute(out, jobs, backend, workers, log=lambda line: None)
+
+
+def test_pool_gives_the_rows_of_one_process_and_of_one_worker(tmp_path):
+    experiments, jobs, report = run_sweep(tmp_path, tmp_path / "pool")
+    assert len(jobs) == 4 and all(r["status"] == "finished" for r in report.values())
+    _, _, _ = run_sweep(tmp_path, tmp_path / "serial", workers=1)
+    for name, config in experiments.items():
+        merged = rows(tmp_path / "pool" / name / "episodes.csv", keep_job=True)
+        assert sorted(merged["job"].unique()) == [0, 1]
+        assert (merged.groupby("seed")["job"].first() == [0, 0, 1, 1]).all()
+        pd.testing.assert_frame_equal(merged, rows(tmp_path / "serial" / name / "episodes.csv", keep_job=True))
+        pd.testing.assert_frame_equal(merged.drop(columns="job"), one_process(config, tmp_path / f"single-{name}"))
+
+
+def test_ray_gives_the_rows_of_the_pool(tmp_path):
+    ray = pytest.importorskip("ray")
+    try:
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+        _, _, report = run_sweep(tmp_path, tmp_path / "ray", backend="ray")
+    finally:
+        ray.shutdown()
+    assert all(r["status"] == "finished" for r in report.values())
+    run_sweep(tmp_path, tmp_path / "pool")
+    for name in ("square", "liq"):
+        pd.testing.assert_frame_equal(rows(tmp_path / "ray" / name / "episodes.csv", keep_job=True),
+                                      rows(tmp_path / "pool" / name / "episodes.csv", keep_job=True))
+
+
+def test_a_killed_job_is_reported_the_others_finish_and_resume_completes_it(tmp_path):
+    """SIGKILL one job's process once it has written rows: it is reported as killed with its
+    seeds, the other job finishes, no merged file yet; resume reruns only the killed job,
+    and the merged rows equal one process's."""
+    text = SWEEP_FILE.split("[[experiment]]\nname = \"liq\"")[0].replace('episodes = 3', 'episodes = 40')
+    experiments = sweep.read_sweep_file(write(tmp_path, text))
+    out = tmp_path / "sw"
+    jobs = sweep.plan(experiments, out, 2)
+    sweep.create(out, experiments, jobs)
+    victim = runner.RunFolder(jobs[1].folder)
+    killed = {}
+
+    def killer():
+        deadline = time.time() + 120
+        while time.time() < deadline and not killed:
+            status = victim.status() or {}
+            if status.get("status") == "running" and victim.csv_size() > 0 and victim.file("checkpoint.pt").exists():
+                os.kill(status["pid"], signal.SIGKILL)
+                killed["pid"] = status["pid"]
+            time.sleep(0.02)
+    thread = threading.Thread(target=killer)
+    thread.start()
+    report = sweep.execute(out, jobs, "local", 2, log=lambda line: None)
+    thread.join()
+    assert killed, "the job finished before it could be killed"
+    assert report[jobs[1].name]["status"] == "killed" and report[jobs[1].name]["seeds"] == [2, 3]
+    assert "SIGKILL" in report[jobs[1].name]["reason"]
+    assert report[jobs[0].name]["status"] == "finished"
+    assert not (out / "square" / "episodes.csv").exists()
+    assert json.loads((out / "report.json").read_text())[jobs[1].name]["status"] == "killed"
+    _, again = sweep.load(out)
+    report = sweep.execute(out, again, "local", 2, log=lambda line: None)
+    assert report[jobs[0].name].get("note") == "finished before" and report[jobs[1].name]["status"] == "finished"
+    pd.testing.assert_frame_equal(rows(out / "square" / "episodes.csv"),
+                                  one_process(experiments["square"], tmp_path / "single"))
+
+
+def test_a_nan_from_the_env_fails_that_job_with_where_and_the_others_finish(tmp_path):
+    """Liquidation with an absurd volatility drives the price negative: log-returns are NaN.
+    That experiment's job fails naming seed, episode and step; the other finishes; the
+    script exits 1 and says how to rerun."""
+    text = SWEEP_FILE.replace('[experiment.set]\ntrades = 8', '[experiment.set]\nannual_volatility = 200.0\ntrades = 8')
+    path = write(tmp_path, text)
+    sweep_script = load_script("sweep")
+    out = tmp_path / "sw"
+    assert sweep_script.main([str(path), "--out", str(out), "--workers", "2"]) == 1
+    report = json.loads((out / "report.json").read_text())
+    bad = [r for r in report.values() if r["status"] != "finished"]
+    assert len(bad) == 1 and bad[0]["experiment"] == "liq"
+    assert "NonFiniteError" in bad[0]["reason"] and "seed 0, episode 1, step" in bad[0]["reason"]
+    assert (out / "square" / "episodes.csv").exists() and not (out / "liq" / "episodes.csv").exists()
+
+
+@pytest.mark.parametrize("text, message", [
+    (SWEEP_FILE.replace("max_steps = 30", "max_step = 30"), "experiment 1 ('square'): unknown setting 'max_step'"),
+    (SWEEP_FILE.replace('name = "liq"', 'name = "square"'), "used twice"),
+    (SWEEP_FILE.replace('preset = "shortfall"', 'preset = "nope"'), "experiment 2 ('liq'): unknown preset 'nope'"),
+    (SWEEP_FILE.replace('name = "liq"', 'name = "liq"\nepisode = 3'), "unknown keys ['episode']"),
+    (SWEEP_FILE.replace('name = "liq"', 'name = "../liq"'), "folder name"),
+    ("[[experiment]\nname = 1", "not valid TOML"),
+])
+def test_a_bad_sweep_file_is_refused_before_any_job_starts(tmp_path, text, message):
+    sweep_script = load_script("sweep")
+    out = tmp_path / "never"
+    with pytest.raises(sweep.SweepError) as err:
+        sweep.read_sweep_file(write(tmp_path, text))
+    assert message in str(err.value)
+    assert sweep_script.main([str(tmp_path / "s.toml"), "--out", str(out)]) == 2
+    assert not out.exists()
+
+
+def test_an_existing_sweep_is_not_overwritten_by_accident(tmp_path):
+    experiments = sweep.read_sweep_file(write(tmp_path))
+    jobs = sweep.plan(experiments, tmp_path / "sw", 2)
+    sweep.create(tmp_path / "sw", experiments, jobs)
+    with pytest.raises(sweep.SweepError, match="--resume"):
+        sweep.create(tmp_path / "sw", experiments, jobs)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("mine")
+    with pytest.raises(sweep.SweepError, match="holds no sweep"):
+        sweep.create(tmp_path / "other", experiments, jobs, overwrite=True)
+    assert (tmp_path / "other" / "notes.txt").exists()
+
+
+@pytest.mark.slow
+def test_reproduce_writes_every_figure_and_the_report(tmp_path):
+    """scripts/reproduce.py at its smoke scale (1 seed, a few episodes per experiment)."""
+    reproduce = load_script("reproduce")
+    out = tmp_path / "repro"
+    assert reproduce.main(["--scale", "smoke", "--out", str(out), "--workers", "2"]) == 0
+    text = (out / "REPORT.md").read_text()
+    for section in ("## Square", "## Block pushing", "## Optimal liquidation", "smoke scale"):
+        assert section in text
+    for fig in ("square/steps_per_episode.png", "square/time_per_step.png", "square-kernels/steps_per_episode.png",
+                "push/push.png", "liquidation/liquidation_cost.png", "liquidation/liquidation_time.png"):
+        assert (out / fig).is_file(), fig
+    assert reproduce.main(["--scale", "smoke", "--out", str(out)]) == 0          # again: nothing to rerun
+    assert reproduce.main(["--scale", "quick", "--out", str(out)]) == 2          # another sweep's folder
