@@ -56,7 +56,7 @@ def band(df: pd.DataFrame, values: pd.Series) -> pd.DataFrame:
     return pd.DataFrame({"median": g.median(), "q25": g.quantile(0.25), "q75": g.quantile(0.75)})
 
 
-def plot_runs(runs, labels, out: Path, logy_steps: bool = True) -> list:
+def plot_runs(runs, labels, out: Path, logy_steps: bool = True, title: str = "") -> list:
     frames = [pd.read_csv(Path(r) / "episodes.csv") for r in runs]
     written = []
     for fname, (_, ylabel, value) in FIGURES.items():
@@ -74,6 +74,8 @@ def plot_runs(runs, labels, out: Path, logy_steps: bool = True) -> list:
             ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.grid(alpha=0.3, which="both")
         ax.legend(title="shaded: inter-quartile range", fontsize=8, title_fontsize=8, loc="best")
+        if title:
+            ax.set_title(title, fontsize=9)
         fig.tight_layout()
         path = out / fname
         fig.savefig(path, dpi=120)
@@ -89,7 +91,7 @@ def run_info(run) -> dict:
                 gamma=cfg["agent"].get("gamma"), env_cfg=cfg["env"])
 
 
-def liquidation_figures(runs, infos, labels, out: Path, block: int, last: int) -> list:
+def liquidation_figures(runs, infos, labels, out: Path, block: int, last: int, title: str = "") -> list:
     from trl_dgpq.almgren_chriss import ACModel
     from trl_dgpq.envs import LiquidationConfig
     from trl_dgpq.config import from_dict
@@ -126,6 +128,8 @@ def liquidation_figures(runs, infos, labels, out: Path, block: int, last: int) -
         taxes[0, j].grid(alpha=0.3, which="both")
         taxes[0, j].legend(fontsize=7)
     for f, name in ((fig, "liquidation_cost.png"), (tfig, "liquidation_time.png")):
+        if title:
+            f.suptitle(title, fontsize=9)
         f.tight_layout()
         f.savefig(out / name, dpi=120)
         plt.close(f)
@@ -159,7 +163,7 @@ def comparison_table(frames, labels, infos, last: int) -> str:
     return "\n".join(lines) + "\n" + note
 
 
-def push_figures(runs, labels, out: Path, last: int) -> list:
+def push_figures(runs, labels, out: Path, last: int, title: str = "") -> list:
     frames = [pd.read_csv(Path(r) / "episodes.csv") for r in runs]
     fig, (ax, sax) = plt.subplots(2, 1, figsize=(6.4, 6.4), sharex=True, height_ratios=(3, 2))
     for df, label in zip(frames, labels):
@@ -176,6 +180,8 @@ def push_figures(runs, labels, out: Path, last: int) -> list:
     sax.set_ylim(-0.03, 1.03)
     for a in (ax, sax):
         a.grid(alpha=0.3)
+    if title:
+        ax.set_title(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(out / "push.png", dpi=120)
     plt.close(fig)
