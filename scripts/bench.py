@@ -5,6 +5,7 @@
     python scripts/bench.py dgpq    # cost per seed-step of the whole DGPQ loop on the square
     python scripts/bench.py kernel  # manifold vs RBF GP regression on discontinuous functions
     python scripts/bench.py push    # block pushing: agent steps per second, share of physics
+    python scripts/bench.py qhat    # one evaluation of Q̂ (Eq. 7) against the pairs it holds
 """
 from __future__ import annotations
 
@@ -124,52 +125,65 @@ def summarise_gp(results):
 
 
 def bench_dgpq(args):
-    """Whole loop (env + agent + collector) on the square, "shaped" preset.
+    """Whole loop (env + agent + collector, its per-episode bookkeeping included) on the
+    square, "shaped" preset.
 
-    This machine's host is noisy over tens of seconds, so each figure is the
-    minimum over ``--repeats`` windows of the median per-step time in the window:
-    early = the first ``--window`` steps of fresh runs, late = consecutive windows
-    from step ``--steps`` on of one long run.
+    Per window of ``--window`` batched steps: the wall time of the collector's whole
+    ``run`` (so rows, CSV-bound bookkeeping and resets count) divided by the steps, per
+    seed (throughput: µs per seed-step = batched step / S), and the median latency of a
+    batched step. This machine's host is noisy over tens of seconds, so each figure is
+    the minimum over ``--repeats`` windows: early = the first window of fresh runs, late
+    = consecutive windows from step ``--steps`` on of one long run. The JSON keeps every
+    window's raw per-step times, the repeat counts and the load average.
     """
+    import os
+
     from trl_dgpq.collectors.experiment import build, resolve_config
     from trl_dgpq.collectors.online import OnlineCollector
 
     def windows(S, gp, start, fresh):
         cfg = resolve_config(env="square", preset="shaped", seeds=list(range(S)), episodes=10 ** 9, gp=gp,
                              budget=args.budget)
-        per_step, env, agent = [], None, None
+        out, env, agent = [], None, None
         for r in range(args.repeats):
             if fresh or env is None:
                 env, agent = build(cfg)
                 if start:
                     OnlineCollector(env, agent, 10 ** 9, max_total_steps=start, progress=False).run()
             c = OnlineCollector(env, agent, 10 ** 9, max_total_steps=args.window, progress=False)
+            t0 = time.perf_counter()
             c.run()
-            per_step.append(np.asarray(c.step_seconds) / S * 1e6)
-        return per_step, agent
+            out.append(dict(wall_s=time.perf_counter() - t0, step_seconds=list(c.step_seconds)))
+        return out, agent
 
-    # Warm-up: one-time costs (allocator, first calls) do not belong to "the first 200 steps".
-    windows(1, "sparse", 0, True)
+    windows(1, "sparse", 0, True)   # warm-up: one-time costs are not "the first 200 steps"
     results = []
-    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}; square/shaped, budget {args.budget}")
-    print(f"{'backend':>7} {'seeds':>6} {'steps':>12} {'us/seed-step':>13} {'(mean)':>9} {'Q̂ size':>8}")
+    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}; square/shaped, budget {args.budget}; "
+          f"load average {os.getloadavg()}")
+    print("us/seed-step: throughput, wall of the whole loop / steps / S; latency: median batched step")
+    print(f"{'backend':>7} {'seeds':>6} {'steps':>12} {'us/seed-step':>13} {'latency us':>11} {'Q̂ pairs':>8}")
     for gp in args.backends:
         for S in args.seed_counts:
             spans = [(f"0-{args.window}", 0, True)] + ([(f"{args.steps}+", args.steps, False)] if args.steps else [])
             for label, start, fresh in spans:
                 t0 = time.perf_counter()
-                per_step, agent = windows(S, gp, start, fresh)
-                us = min(float(np.median(w)) for w in per_step)
-                us_mean = min(float(w.mean()) for w in per_step)
+                raw, agent = windows(S, gp, start, fresh)
+                us = min(w["wall_s"] / args.window / S * 1e6 for w in raw)
+                latency = min(float(np.median(w["step_seconds"])) * 1e6 for w in raw)
                 qsize = float(agent.qhat.size().double().mean())
                 results.append(dict(backend=gp, seeds=S, steps=label, us_per_seed_step=round(us, 2),
-                                    us_per_seed_step_mean=round(us_mean, 2), qhat_size_mean=qsize))
-                print(f"{gp:>7} {S:>6} {label:>12} {us:>13.1f} {us_mean:>9.1f} {qsize:>8.0f}"
+                                    batched_step_latency_us=round(latency, 1), qhat_pairs_per_seed=qsize,
+                                    repeats=args.repeats, window=args.window,
+                                    raw=[dict(wall_s=w["wall_s"], step_seconds=[round(x, 7) for x in w["step_seconds"]])
+                                         for w in raw]))
+                print(f"{gp:>7} {S:>6} {label:>12} {us:>13.1f} {latency:>11.0f} {qsize:>8.0f}"
                       f"   ({time.perf_counter() - t0:.0f} s)", flush=True)
     out = Path(args.out or "bench-dgpq.json")
     out.write_text(json.dumps(dict(meta=dict(torch=torch.__version__, threads=torch.get_num_threads(),
                                              env="square", preset="shaped", budget=args.budget,
-                                             statistic="min over repeats of the median per-step time"),
+                                             load_average_end=os.getloadavg(), quick=args.quick,
+                                             statistic="min over repeats; us_per_seed_step is throughput "
+                                                       "(window wall time / steps / seeds)"),
                                    results=results), indent=1))
     print(f"wrote {out}")
 
@@ -278,6 +292,39 @@ def bench_push(args):
     print(f"wrote {out}")
 
 
+def bench_qhat(args):
+    """One evaluation of Q̂ for S seeds and A actions, against the pairs held per row
+    (``width``), just below and just above each doubling of the storage (``capacity``).
+    Storage is filled through ``load_state_dict`` (a format every version reads), so the
+    same script times any commit."""
+    from trl_dgpq.qhat import LipschitzQ
+
+    S, A, dim = args.seeds, 4, 2
+    gen = torch.Generator().manual_seed(0)
+    results = []
+    print(f"Q̂ evaluation, S = {S}, A = {A}, dim = {dim}, L1; torch threads {torch.get_num_threads()}")
+    print(f"{'pairs/row':>9} {'capacity':>9} {'us/call':>9} {'ns/pair':>8}")
+    for width in args.widths:
+        tight = 1 << (width - 1).bit_length()           # storage before and after a doubling
+        for cap in (tight, 2 * tight):
+            q = LipschitzQ(S, A, dim, 1.0, 2.0, capacity=cap)
+            mu = torch.full((S, A, cap), torch.inf, dtype=torch.float64)
+            mu[..., :width] = torch.rand(S, A, width, generator=gen, dtype=torch.float64)
+            q.load_state_dict(dict(s=torch.rand(S, A, cap, dim, generator=gen, dtype=torch.float64), mu=mu,
+                                   width=width, version=1))
+            x = torch.rand(S, dim, generator=gen, dtype=torch.float64)
+            sec = timeit(lambda: q(x), repeats=args.repeats)
+            r = dict(width=width, capacity=cap, us_per_call=round(sec * 1e6, 2),
+                     ns_per_pair=round(sec * 1e9 / (width * S * A), 3))
+            results.append(r)
+            print(f"{width:>9} {cap:>9} {r['us_per_call']:>9.1f} {r['ns_per_pair']:>8.2f}", flush=True)
+    out = Path(args.out or "bench-qhat.json")
+    out.write_text(json.dumps(dict(meta=dict(seeds=S, actions=A, dim=dim, threads=torch.get_num_threads(),
+                                             repeats=args.repeats, statistic="min over repeats of the mean"),
+                                   results=results), indent=1))
+    print(f"wrote {out}")
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="what", required=True)
@@ -294,6 +341,8 @@ def main(argv=None):
     d.add_argument("--backends", nargs="+", default=["sparse", "exact"], choices=["sparse", "exact"])
     d.add_argument("--seed-counts", nargs="+", type=int, default=[1, 64])
     d.add_argument("--budget", type=int, default=100)
+    d.add_argument("--quick", action="store_true", help="under 2 minutes: late window at step 2,000, 2 repeats, "
+                                                        "sparse GP only")
     d.add_argument("--out", default=None)
     d.set_defaults(fn=bench_dgpq)
     k = sub.add_parser("kernel", help="manifold vs RBF GP regression, held-out RMSE and NLL")
@@ -308,7 +357,15 @@ def main(argv=None):
     b.add_argument("--seed-counts", nargs="+", type=int, default=[1, 8])
     b.add_argument("--out", default=None)
     b.set_defaults(fn=bench_push)
+    q = sub.add_parser("qhat", help="one Q̂ evaluation against the pairs held")
+    q.add_argument("--seeds", type=int, default=64)
+    q.add_argument("--widths", nargs="+", type=int, default=[100, 200, 1000, 2000, 4000])
+    q.add_argument("--repeats", type=int, default=5)
+    q.add_argument("--out", default=None)
+    q.set_defaults(fn=bench_qhat)
     args = p.parse_args(argv)
+    if args.what == "dgpq" and args.quick:
+        args.steps, args.repeats, args.backends = min(args.steps, 2000), min(args.repeats, 2), ["sparse"]
     torch.set_num_threads(torch.get_num_threads())
     args.fn(args)
 
