@@ -50,7 +50,7 @@ EXPERIMENTS = [
 # (seeds, episodes) per group; DDPG costs ~10 ms per seed-step, so it gets fewer at quick scale.
 SCALES = {
     "smoke": {"square": (1, 3), "push": (1, 3), "liquidation": (1, 4), "ddpg": (1, 2)},   # for tests
-    "quick": {"square": (4, 30), "push": (4, 40), "liquidation": (4, 200), "ddpg": (2, 100)},
+    "quick": {"square": (6, 50), "push": (6, 60), "liquidation": (4, 500), "ddpg": (2, 200)},
     "full": {"square": (10, 100), "push": (10, 100), "liquidation": (4, 1000), "ddpg": (4, 1000)},
 }
 
@@ -200,6 +200,7 @@ def main(argv=None) -> int:
         else:
             jobs = sweep.plan(planned, out, None)
             sweep.create(out, planned, jobs)
+        jobs.sort(key=lambda j: j.config["run"]["agent"] != "ddpg")   # the longest jobs first
         print(f"reproduce ({args.scale}) -> {out}: {len(jobs)} experiments, {args.workers} workers", flush=True)
         t0 = time.perf_counter()
         report = sweep.execute(out, jobs, "local", args.workers, log=lambda line: print(line, flush=True))

@@ -245,3 +245,4 @@ def test_state_scale_refuses_bad_weights(scale, match):
     from trl_dgpq.collectors.experiment import resolve_config
     with pytest.raises(ValueError, match=match):
         resolve_config(seeds=[0], state_scale=scale)
+
