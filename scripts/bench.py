@@ -294,8 +294,7 @@ def bench_push(args):
 
 def bench_qhat(args):
     """One evaluation of Q̂ for S seeds and A actions, against the pairs held per row
-    (``width``), in a full storage and in one just doubled (``capacity`` = 2 width: the
-    storage is scanned whole once it is more than half used).
+    (``width``), in a full storage and in one just doubled (``capacity`` = 2 width - 2).
     Storage is filled through ``load_state_dict`` (a format every version reads), so the
     same script times any commit."""
     from trl_dgpq.qhat import LipschitzQ
@@ -306,7 +305,7 @@ def bench_qhat(args):
     print(f"Q̂ evaluation, S = {S}, A = {A}, dim = {dim}, L1; torch threads {torch.get_num_threads()}")
     print(f"{'pairs/row':>9} {'capacity':>9} {'us/call':>9} {'ns/pair':>8}")
     for width in args.widths:
-        for cap in (width, 2 * width):                   # full, and just doubled
+        for cap in (width, 2 * width - 2):               # full, and just doubled
             q = LipschitzQ(S, A, dim, 1.0, 2.0, capacity=cap)
             mu = torch.full((S, A, cap), torch.inf, dtype=torch.float64)
             mu[..., :width] = torch.rand(S, A, width, generator=gen, dtype=torch.float64)
