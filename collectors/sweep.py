@@ -313,6 +313,30 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
     return report
 
 
+def run_script(script: str, rerun: str, body: Callable[[], int]) -> int:
+    """``body()``'s exit code; a bad request -> one line and 2, Ctrl-C -> how to go on and 130."""
+    try:
+        return body()
+    except (SweepError, runner.RunError) as err:
+        print(f"{script}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"interrupted: continue with {rerun}", file=sys.stderr)
+        return 130
+
+
+def exit_code(report: dict, rerun: str) -> int:
+    """For the scripts: 0 when every job finished; else list the others on stderr, say how
+    to rerun them, and return 1."""
+    bad = {name: r for name, r in report.items() if r["status"] != "finished"}
+    for name, r in bad.items():
+        print(f"{name}: {r['status']}: {r.get('reason')}", file=sys.stderr)
+    if bad:
+        print(f"{len(bad)} of {len(report)} jobs did not finish; the others kept their rows. Rerun them with: "
+              f"{rerun}", file=sys.stderr)
+    return 1 if bad else 0
+
+
 def describe_jobs(jobs: List[Job]) -> str:
     names = dict.fromkeys(j.experiment for j in jobs)
     return "; ".join(f"{n}: {describe(next(j.config for j in jobs if j.experiment == n))}, "

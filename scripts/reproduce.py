@@ -191,7 +191,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     out = Path(args.out or f"runs/reproduce-{args.scale}")
     planned = experiments(args.scale)
-    try:
+    def body() -> int:
         if (out / sweep.SWEEP).is_file():
             recorded, jobs = sweep.load(out)
             if {k: v["run"] for k, v in recorded.items()} != {k: v["run"] for k, v in planned.items()}:
@@ -204,20 +204,12 @@ def main(argv=None) -> int:
         print(f"reproduce ({args.scale}) -> {out}: {len(jobs)} experiments, {args.workers} workers", flush=True)
         t0 = time.perf_counter()
         report = sweep.execute(out, jobs, "local", args.workers, log=lambda line: print(line, flush=True))
-    except (sweep.SweepError, runner.RunError) as err:
-        print(f"reproduce.py: error: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"interrupted: run the same command again to continue ({out})", file=sys.stderr)
-        return 130
-    bad = [n for n, r in report.items() if r["status"] != "finished"]
-    if bad:
-        print(f"{len(bad)} experiments did not finish ({', '.join(bad)}); run the same command again to rerun "
-              "them", file=sys.stderr)
-        return 1
-    path = write_report(out, args.scale, time.perf_counter() - t0)
-    print(f"wrote {path} and its figures", flush=True)
-    return 0
+        if sweep.exit_code(report, "the same command"):
+            return 1
+        path = write_report(out, args.scale, time.perf_counter() - t0)
+        print(f"wrote {path} and its figures", flush=True)
+        return 0
+    return sweep.run_script("reproduce.py", "the same command", body)
 
 
 if __name__ == "__main__":

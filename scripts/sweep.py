@@ -20,7 +20,7 @@ import logging
 import os
 import sys
 
-from trl_dgpq.collectors import runner, sweep
+from trl_dgpq.collectors import sweep
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -45,37 +45,27 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.workers is not None and args.workers < 1:
         parser.error("--workers must be >= 1")
-    try:
+    if args.resume:
+        if args.file or args.out or args.overwrite or args.seeds_per_job:
+            parser.error("--resume continues a sweep as it was planned: give no file, --out, --overwrite "
+                         "or --seeds-per-job with it")
+    elif not args.file or not args.out:
+        parser.error("give a sweep file and --out (or --resume OUT)")
+    out = args.resume or args.out
+    rerun = f"python scripts/sweep.py --resume {out}"
+
+    def body() -> int:
         if args.resume:
-            if args.file or args.out or args.overwrite or args.seeds_per_job:
-                parser.error("--resume continues a sweep as it was planned: give no file, --out, --overwrite "
-                             "or --seeds-per-job with it")
-            out = args.resume
             experiments, jobs = sweep.load(out)
         else:
-            if not args.file or not args.out:
-                parser.error("give a sweep file and --out (or --resume OUT)")
-            out = args.out
             experiments = sweep.read_sweep_file(args.file)
             jobs = sweep.plan(experiments, out, args.seeds_per_job)
             sweep.create(out, experiments, jobs, overwrite=args.overwrite)
         print(f"sweep -> {out}: {sweep.describe_jobs(jobs)}; backend {args.backend}", flush=True)
         report = sweep.execute(out, jobs, args.backend, args.workers, args.ray_address, args.cpus_per_job,
                                log=lambda line: print(line, flush=True))
-    except (sweep.SweepError, runner.RunError) as err:
-        print(f"sweep.py: error: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"interrupted: continue with python scripts/sweep.py --resume {out}", file=sys.stderr)
-        return 130
-    bad = {name: r for name, r in report.items() if r["status"] != "finished"}
-    if bad:
-        for name, r in bad.items():
-            print(f"{name}: {r['status']}: {r.get('reason')}", file=sys.stderr)
-        print(f"{len(bad)} of {len(report)} jobs did not finish; the others kept their rows. "
-              f"Rerun them with: python scripts/sweep.py --resume {out}", file=sys.stderr)
-        return 1
-    return 0
+        return sweep.exit_code(report, rerun)
+    return sweep.run_script("sweep.py", rerun, body)
 
 
 if __name__ == "__main__":
