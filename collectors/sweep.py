@@ -131,8 +131,11 @@ def plan(experiments: Dict[str, dict], out, seeds_per_job: Optional[int]) -> Lis
 # ------------------------------------------------------------------ one job
 def run_job(config: dict, folder: str) -> None:
     """Run (or continue) one job in this process, torch at one thread (see the module doc)."""
+    import logging
+
     import torch
     torch.set_num_threads(1)
+    logging.getLogger("torchrl").setLevel(logging.WARNING)  # one INFO line per replay buffer otherwise
     path = runner.RunFolder(folder)
     if path.file(runner.CONFIG).is_file():
         status = (path.status() or {}).get("status")
