@@ -199,13 +199,20 @@ class RunFolder:
     def episodes(self) -> pd.DataFrame:
         return read_csv_exact(self.file(EPISODES))
 
-    def finalize_csv(self) -> pd.DataFrame:
-        """Rewrite episodes.csv sorted by (seed, episode), atomically."""
-        df = self.episodes().sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
+    def write_episodes(self, df: pd.DataFrame) -> pd.DataFrame:
+        """Write ``df`` as episodes.csv sorted by (seed, episode), atomically; returns it sorted."""
+        df = df.sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
         buf = io.StringIO()
         df.to_csv(buf, index=False)
         atomic_write(self.file(EPISODES), lambda f: f.write(buf.getvalue().encode()))
         return df
+
+    def finalize_csv(self) -> pd.DataFrame:
+        """Rewrite episodes.csv sorted by (seed, episode), atomically."""
+        return self.write_episodes(self.episodes())
+
+    def finished(self) -> bool:
+        return (self.status() or {}).get("status") == "finished"
 
     def save_checkpoint(self, state: dict) -> None:
         atomic_write(self.file(CHECKPOINT), lambda f: torch.save(state, f))

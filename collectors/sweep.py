@@ -36,7 +36,7 @@ from typing import Callable, Dict, List, Optional
 import pandas as pd
 
 from . import runner
-from .experiment import TIMING_COLUMNS, describe, resolve_config
+from .experiment import describe, resolve_config
 
 SWEEP, REPORT = "sweep.json", "report.json"
 EXPERIMENT_KEYS = {"name", "env", "agent", "preset", "seeds", "episodes", "checkpoint_every", "set"}
@@ -123,9 +123,13 @@ def plan(experiments: Dict[str, dict], out, seeds_per_job: Optional[int]) -> Lis
         k = seeds_per_job or len(seeds)
         for j, start in enumerate(range(0, len(seeds), k)):
             part = seeds[start:start + k]
-            cfg = {**config, "run": {**config["run"], "seeds": part}}
-            jobs.append(Job(name, j, part, str(Path(out) / name / "jobs" / f"j{j:03d}"), cfg))
+            jobs.append(Job(name, j, part, str(Path(out) / name / "jobs" / f"j{j:03d}"), _with_seeds(config, part)))
     return jobs
+
+
+def _with_seeds(config: dict, seeds: List[int]) -> dict:
+    """The experiment's config for one job's seeds."""
+    return {**config, "run": {**config["run"], "seeds": seeds}}
 
 
 # ------------------------------------------------------------------ one job
@@ -138,8 +142,7 @@ def run_job(config: dict, folder: str) -> None:
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # one INFO line per replay buffer otherwise
     path = runner.RunFolder(folder)
     if path.file(runner.CONFIG).is_file():
-        status = (path.status() or {}).get("status")
-        if status == "finished":
+        if path.finished():
             return
         runner.resume(path, runner.resumable_config(path), progress=False)
     else:
@@ -234,17 +237,11 @@ def run_ray(jobs: List[Job], address: Optional[str], cpus_per_job: float,
 # ------------------------------------------------------------------ the sweep
 def merge(out, name: str, jobs: List[Job]) -> Optional[pd.DataFrame]:
     """The experiment's episodes.csv from its finished jobs (None unless all finished)."""
-    frames = []
-    for job in jobs:
-        folder = runner.RunFolder(job.folder)
-        if (folder.status() or {}).get("status") != "finished":
-            return None
-        frames.append(folder.episodes().assign(job=job.index))
-    df = pd.concat(frames, ignore_index=True).sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
-    exp = runner.RunFolder(Path(out) / name)
-    buf = df.to_csv(index=False).encode()
-    runner.atomic_write(exp.file(runner.EPISODES), lambda f: f.write(buf))
-    return df
+    folders = [runner.RunFolder(job.folder) for job in jobs]
+    if not all(f.finished() for f in folders):
+        return None
+    frames = [f.episodes().assign(job=job.index) for f, job in zip(folders, jobs)]
+    return runner.RunFolder(Path(out) / name).write_episodes(pd.concat(frames, ignore_index=True))
 
 
 def create(out, experiments: Dict[str, dict], jobs: List[Job], overwrite: bool = False) -> None:
@@ -280,8 +277,7 @@ def load(out) -> tuple:
         raise SweepError(f"{out} holds no sweep to resume (no {SWEEP})") from None
     experiments = data["experiments"]
     jobs = [Job(j["experiment"], j["index"], j["seeds"], str(out / j["folder"]),
-                {**experiments[j["experiment"]], "run": {**experiments[j["experiment"]]["run"], "seeds": j["seeds"]}})
-            for j in data["jobs"]]
+                _with_seeds(experiments[j["experiment"]], j["seeds"])) for j in data["jobs"]]
     return experiments, jobs
 
 
@@ -292,7 +288,7 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
     if backend not in BACKENDS:
         raise SweepError(f"backend must be one of {BACKENDS}, got {backend!r}")
     out = Path(out)
-    todo = [j for j in jobs if (runner.RunFolder(j.folder).status() or {}).get("status") != "finished"]
+    todo = [j for j in jobs if not runner.RunFolder(j.folder).finished()]
     report = {j.name: dict(status="finished", seeds=j.seeds, note="finished before") for j in jobs if j not in todo}
     t0, done = time.perf_counter(), [0]
 
@@ -345,10 +341,5 @@ def describe_jobs(jobs: List[Job]) -> str:
     return "; ".join(f"{n}: {describe(next(j.config for j in jobs if j.experiment == n))}, "
                      f"{sum(len(j.seeds) for j in jobs if j.experiment == n)} seeds in "
                      f"{sum(j.experiment == n for j in jobs)} jobs" for n in names)
-
-
-def frame_without_timing(path) -> pd.DataFrame:
-    """An episodes.csv without its timing columns, for comparing runs."""
-    return runner.read_csv_exact(path).drop(columns=list(TIMING_COLUMNS))
 
 

@@ -161,18 +161,21 @@ class _World:
         self.pusher = pb.loadURDF("cube.urdf", start, globalScaling=2 * PUSHER_HALF, physicsClientId=c)
         self.constraint = pb.createConstraint(self.pusher, -1, -1, -1, pb.JOINT_FIXED, [0, 0, 0], [0, 0, 0],
                                               start, physicsClientId=c)
-        self.force = cfg.push_force
-        pb.changeConstraint(self.constraint, start, maxForce=self.force, physicsClientId=c)
-        self.start = start
+        self.force, self.start = cfg.push_force, start
+        self.hold(start)
         # Let the block settle on the table first: the snapshot then holds the contacts every
         # episode starts with (a snapshot of the unstepped world made the first episode differ).
         for _ in range(SETTLE_STEPS):
             pb.stepSimulation(physicsClientId=c)
         self.snapshot = pb.saveState(physicsClientId=c)
 
+    def hold(self, target) -> None:
+        """Set the constraint's target (xyz), where the pusher is held."""
+        pb.changeConstraint(self.constraint, target, maxForce=self.force, physicsClientId=self.client)
+
     def reset(self) -> None:
         pb.restoreState(self.snapshot, physicsClientId=self.client)
-        pb.changeConstraint(self.constraint, self.start, maxForce=self.force, physicsClientId=self.client)
+        self.hold(self.start)
 
     def move(self, start, end, substeps: int, settle: int) -> None:
         """Sweep the pusher's target from ``start`` to ``end`` (xyz lists) in ``substeps``
@@ -209,7 +212,7 @@ class _World:
             with open(path, "wb") as f:
                 f.write(data.numpy().tobytes())
             pb.restoreState(fileName=path, physicsClientId=self.client)
-        pb.changeConstraint(self.constraint, target, maxForce=self.force, physicsClientId=self.client)
+        self.hold(target)
 
     def close(self) -> None:
         if self.client is not None and pb.isConnected(self.client):

@@ -140,6 +140,13 @@ def liquidation_figures(runs, infos, labels, out: Path, block: int, last: int, t
     return written
 
 
+def paired_ratios(df: pd.DataFrame, ref: pd.DataFrame, columns):
+    """Mean of each column over the (seed, episode) pairs ``df`` shares with ``ref``, divided by
+    ``ref``'s mean over the same pairs (same price paths); None if they share none."""
+    pairs = df.merge(ref, on=["seed", "episode"], suffixes=("", "_ref"))
+    return [pairs[c].mean() / pairs[c + "_ref"].mean() for c in columns] if len(pairs) else None
+
+
 def comparison_table(frames, labels, infos, last: int) -> str:
     """Markdown: the last ``last`` episodes of each run, costs as ratios to the ac-optimal run
     on the same (seed, episode) pairs (common random numbers make the pairs comparable)."""
@@ -150,10 +157,8 @@ def comparison_table(frames, labels, infos, last: int) -> str:
         tail = df[df["episode"] > df["episode"].max() - last]
         ratios = ["–", "–"]
         if ref is not None:
-            pairs = tail.merge(ref, on=["seed", "episode"], suffixes=("", "_ref"))
-            if len(pairs):
-                ratios = [f"{pairs[c].mean() / pairs[c + '_ref'].mean():.3f}"
-                          for c in ("ac_cost", "implementation_shortfall")]
+            found = paired_ratios(tail, ref, ("ac_cost", "implementation_shortfall"))
+            ratios = ratios if found is None else [f"{r:.3f}" for r in found]
         gamma = "–" if info["gamma"] is None else f"{info['gamma']:g}"
         lines.append(f"| {label} | {gamma} | {df.seed.nunique()} x {df.episode.max()} | {tail.ac_cost.mean():,.0f} "
                      f"| {ratios[0]} | {tail.implementation_shortfall.mean():,.0f} | {ratios[1]} "

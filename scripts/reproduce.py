@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
-import json
 import os
 import sys
 import time
@@ -92,7 +91,7 @@ def square_section(out: Path, plot, label: str, title: str) -> str:
     for name in names:
         df = pd.read_csv(out / name / "episodes.csv")
         E = int(df.episode.max())
-        cap = json.loads((out / name / "config.json").read_text())["env"]["max_steps"]
+        cap = plot.run_info(out / name)["env_cfg"]["max_steps"]
         first, later, last = (median_steps(df, [1]), median_steps(df, range(3, E + 1)),
                               median_steps(df, range(E - 4, E + 1)))
         facts[name] = (first, later)
@@ -139,14 +138,12 @@ def liquidation_section(out: Path, plot, label: str, title: str) -> str:
     runs = [str(out / n) for n in names]
     infos = [plot.run_info(r) for r in runs]
     (out / "liquidation").mkdir(exist_ok=True)
-    last = max(1, min(pd.read_csv(out / n / "episodes.csv").episode.max() for n in names) // 2)
+    frames = {n: pd.read_csv(out / n / "episodes.csv") for n in names}
+    last = max(1, min(f.episode.max() for f in frames.values()) // 2)
     plot.liquidation_figures(runs, infos, [n.removeprefix("liq-") for n in names], out / "liquidation",
                              block=max(1, last // 5), last=last, title=title)
-    frames = {n: pd.read_csv(out / n / "episodes.csv") for n in names}
-    opt, twap = frames["liq-ac-optimal"], frames["liq-twap"]
-    pairs = twap.merge(opt, on=["seed", "episode"], suffixes=("", "_opt"))
-    cost, short = (pairs.ac_cost.mean() / pairs.ac_cost_opt.mean(),
-                   pairs.implementation_shortfall.mean() / pairs.implementation_shortfall_opt.mean())
+    opt = frames["liq-ac-optimal"]
+    cost, short = plot.paired_ratios(frames["liq-twap"], opt, ("ac_cost", "implementation_shortfall"))
     dump = frames["liq-ddpg-utility-ratio"]
     sentences = [
         f"- AC optimum (SPEC 3.2: U* = $704,723): ac-optimal's mean ac_cost is ${opt.ac_cost.mean():,.0f} "
