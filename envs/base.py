@@ -31,6 +31,7 @@ class SeedBatchedEnv(EnvBase):
     batch_locked = True
     Config = None                         # the env's settings dataclass (with a max_steps field)
     _state_names: Tuple[str, ...] = ()    # tensors that change as the env runs
+    _streams: Tuple[Tuple[str, int], ...] = ()  # more per-seed streams beside self.rng: (attribute, stream id)
     episode_info: Tuple[str, ...] = ()    # (S,) entries of each step's output holding running episode
                                           # totals; their values at the episode's end go in its CSV row
 
@@ -43,7 +44,7 @@ class SeedBatchedEnv(EnvBase):
         super().__init__(device=device, batch_size=torch.Size([len(seeds)]))
         self.seeds = seeds
         self.max_steps = int(cfg.max_steps)
-        self.rng = SeedStreams(seeds, ENV_STREAM, device=self.device)
+        self._key_streams()
         self.t = torch.zeros(len(seeds), dtype=torch.long, device=self.device)
         self._make_specs()
         flag = Categorical(2, shape=(len(seeds), 1), dtype=torch.bool, device=self.device)
@@ -132,7 +133,12 @@ class SeedBatchedEnv(EnvBase):
         the usual way is to pass ``seeds`` to the constructor."""
         if seed is not None:
             self.seeds = [int(seed) + i for i in range(self.num_seeds)]
-            self.rng = SeedStreams(self.seeds, ENV_STREAM, device=self.device)
+            self._key_streams()
+
+    def _key_streams(self) -> None:
+        self.rng = SeedStreams(self.seeds, ENV_STREAM, device=self.device)
+        for name, stream in self._streams:
+            setattr(self, name, SeedStreams(self.seeds, stream, device=self.device))
 
     def _td(self, **tensors) -> TensorDict:
         return TensorDict(tensors, batch_size=self.batch_size, device=self.device)
@@ -141,12 +147,16 @@ class SeedBatchedEnv(EnvBase):
     def state_dict(self, *args, **kwargs) -> dict:
         """Step counters, random streams and the subclass's ``_state_names`` tensors."""
         return {"t": self.t.clone(), "rng": self.rng.state_dict(),
+                **{name: getattr(self, name).state_dict() for name, _ in self._streams},
                 **{name: getattr(self, name).clone() for name in self._state_names}}
 
     def load_state_dict(self, state: dict, strict: bool = True) -> None:
         if state["t"].shape != self.t.shape:
             raise ValueError(f"env state is for {state['t'].shape[0]} seeds, this env has {self.num_seeds}")
         self.rng.load_state_dict(state["rng"])
+        for name, _ in self._streams:
+            if name in state:  # checkpoints from before the stream existed: it had drawn nothing
+                getattr(self, name).load_state_dict(state[name])
         self.t.copy_(state["t"])
         for name in self._state_names:
             getattr(self, name).copy_(state[name])

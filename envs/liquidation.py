@@ -42,7 +42,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
 from trl_dgpq.almgren_chriss import ACModel
 from trl_dgpq.config import setting
-from trl_dgpq.rng import PRICE_STREAM, SeedStreams, box_muller
+from trl_dgpq.rng import PRICE_STREAM, box_muller
 
 from .base import SeedBatchedEnv
 
@@ -101,6 +101,7 @@ class LiquidationEnv(SeedBatchedEnv):
 
     Config = LiquidationConfig
     episode_info = ("implementation_shortfall", "ac_cost")
+    _streams = (("price_rng", PRICE_STREAM),)  # keyed by episode (uniform_at): its counter never moves
     _state_names = ("x", "price", "returns", "shortfall", "ac_cost", "episode", "ou", "xi")
 
     def __init__(self, seeds=(0,), cfg: LiquidationConfig | None = None, device="cpu", **overrides):
@@ -116,7 +117,6 @@ class LiquidationEnv(SeedBatchedEnv):
         self.episode = torch.full((S,), -1, dtype=torch.long, device=self.device)  # index of the current episode
         self.ou = torch.zeros(S, **f64)
         self.xi = torch.zeros(S, cfg.trades, **f64)  # the current episode's price noise
-        self.price_rng = SeedStreams(self.seeds, PRICE_STREAM, device=self.device)  # keyed: no state
         self.levels = torch.linspace(0, 1, cfg.action_levels, **f64) if cfg.action_levels else None
 
     def _make_specs(self) -> None:
@@ -132,11 +132,6 @@ class LiquidationEnv(SeedBatchedEnv):
         else:
             self.action_spec = Bounded(0.0, 1.0, shape=(S, 1), **f64)
         self.reward_spec = Unbounded(shape=(S, 1), **f64)
-
-    def _set_seed(self, seed):
-        super()._set_seed(seed)
-        if seed is not None:
-            self.price_rng = SeedStreams(self.seeds, PRICE_STREAM, device=self.device)
 
     def _observation(self, trades_done):
         cfg = self.cfg

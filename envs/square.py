@@ -7,6 +7,9 @@ distance <= ``goal_radius`` from the goal terminates; the step cap truncates.
 Rewards:
   "shaped": r = 2 - |goal - s'|_2
   "paper":  r = -1 per step, 0 on reaching the goal
+plus, with ``reward_noise`` > 0, Gaussian noise of that standard deviation on every
+reward (its own stream, so the moves are the same with and without it): the
+"noisy" presets, where a GP must average several samples before Q̂ moves.
 """
 from __future__ import annotations
 
@@ -18,6 +21,8 @@ import torch
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
 from trl_dgpq.config import setting
+
+from trl_dgpq.rng import REWARD_NOISE_STREAM
 
 from .base import SeedBatchedEnv
 
@@ -35,6 +40,7 @@ class SquareConfig:
     noise: float = setting(0.01, "uniform noise on the moved axis, in [-noise, noise]")
     goal: Tuple[float, ...] = setting((1.0, 1.0), "goal position, e.g. 1,1")
     goal_radius: float = setting(0.15, "episode ends (terminated) within this Euclidean distance of the goal")
+    reward_noise: float = setting(0.0, "standard deviation of Gaussian noise added to every reward")
 
     def check(self) -> "SquareConfig":
         if self.max_steps < 1:
@@ -43,6 +49,8 @@ class SquareConfig:
             raise ValueError(f"step_size must be > 0, got {self.step_size}")
         if not (math.isfinite(self.noise) and self.noise >= 0):
             raise ValueError(f"noise must be >= 0, got {self.noise}")
+        if not (math.isfinite(self.reward_noise) and self.reward_noise >= 0):
+            raise ValueError(f"reward_noise must be >= 0, got {self.reward_noise}")
         if not (math.isfinite(self.goal_radius) and self.goal_radius > 0):
             raise ValueError(f"goal_radius must be > 0, got {self.goal_radius}")
         if len(self.goal) != 2 or not all(0 <= g <= 1 for g in self.goal):
@@ -55,6 +63,7 @@ class SquareEnv(SeedBatchedEnv):
 
     Config = SquareConfig
     _state_names = ("pos",)
+    _streams = (("reward_rng", REWARD_NOISE_STREAM),)
 
     def __init__(self, seeds=(0,), cfg: SquareConfig | None = None, device="cpu", **overrides):
         super().__init__(seeds, cfg, device, **overrides)
@@ -84,4 +93,6 @@ class SquareEnv(SeedBatchedEnv):
             reward = 2.0 - dist
         else:
             reward = torch.where(terminated, 0.0, -1.0).to(torch.float64)
+        if cfg.reward_noise:
+            reward = reward + cfg.reward_noise * self.reward_rng.normal(1)[:, 0]
         return self._td(observation=self.pos.clone()), reward, terminated

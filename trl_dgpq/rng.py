@@ -23,7 +23,8 @@ ENV_STREAM = 2     # environment noise
 KERNEL_STREAM = 3  # initial weights of manifold kernels
 POLICY_STREAM = 4  # random agent's actions
 PRICE_STREAM = 5   # liquidation: price noise, keyed by (seed, episode) for common random numbers
-LEARNER_STREAM = 6  # neural learners (DDPG): initial weights, replay sampling, exploration noise
+LEARNER_STREAM = 6  # neural learners (DDPG, DQN): initial weights, replay sampling, exploration
+REWARD_NOISE_STREAM = 7  # square: Gaussian reward noise
 
 
 def _signed(c: int) -> int:
