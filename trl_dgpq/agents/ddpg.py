@@ -3,15 +3,8 @@
 with ``LazyTensorStorage``, ``OrnsteinUhlenbeckProcessModule``, ``Actor`` (an ``MLP``
 then ``TanhModule`` onto the action box) and ``ValueOperator``.
 
-One learner per seed. Why not one learner whose parameters carry a seed dimension
-(``torch.vmap``): TorchRL's losses, replay buffers and OU module draw from torch's
-global generator and hold one set of parameters, so stacking would mean
-re-implementing them functionally; per-seed learners keep every part stock and make
-"seed i alone = seed i in a batch" hold by construction. The price is a Python loop
-over seeds (S small networks instead of one batched one). Each learner owns a
-torch generator state: it is swapped into torch's global generator (``fork_rng``)
-around everything the learner does, so initial weights, replay sampling and OU
-noise form a per-seed stream, saved with the learner.
+One learner per seed (``neural.PerSeedLearners``: why, and how each keeps its own
+random stream).
 
 Per step, for each active seed: act (actor + OU noise, reset at each episode's
 start), store the transition, and once the buffer holds a batch, one gradient step
@@ -20,7 +13,6 @@ both target networks.
 """
 from __future__ import annotations
 
-import contextlib
 import math
 from dataclasses import dataclass
 from typing import Sequence, Tuple
@@ -35,7 +27,7 @@ from torchrl.objectives import DDPGLoss, SoftUpdate
 
 from ..config import setting
 from ..envs.base import observation_dim
-from ..rng import LEARNER_STREAM, SeedStreams
+from .neural import PerSeedLearners, TorchLearner
 
 
 @dataclass
@@ -94,13 +86,13 @@ def action_box(env) -> Bounded:
     return spec
 
 
-class Learner:
-    """One seed's DDPG: networks, loss, optimisers, replay buffer, OU state and generator."""
+class Learner(TorchLearner):
+    """One seed's DDPG: networks, loss, optimisers, replay buffer and OU state."""
 
     def __init__(self, cfg: DDPGConfig, obs_dim: int, box: Bounded, torch_seed: int):
+        super().__init__(torch_seed)
         low, high = box.space.low[0].float(), box.space.high[0].float()
         act_dim = low.numel()
-        self.generator_state = torch.Generator().manual_seed(torch_seed).get_state()
         with self.own_generator():  # initial weights from this learner's generator
             net = MLP(in_features=obs_dim, out_features=act_dim, num_cells=list(cfg.actor_hidden),
                       activation_class=nn.ReLU)
@@ -119,17 +111,7 @@ class Learner:
             eps_init=1.0, eps_end=1.0)
         self.noise = TensorDict({"_ou_prev_noise": torch.zeros(1, act_dim), "_ou_steps": torch.zeros(1, dtype=torch.long)},
                                 batch_size=[1])
-        self.batch_size, self.updates = cfg.batch_size, 0
-
-    @contextlib.contextmanager
-    def own_generator(self):
-        """Torch's global generator is this learner's for the duration (and is put back after)."""
-        with torch.random.fork_rng(devices=[]):
-            torch.set_rng_state(self.generator_state)
-            try:
-                yield
-            finally:
-                self.generator_state = torch.get_rng_state()
+        self.batch_size = cfg.batch_size
 
     def act(self, obs: torch.Tensor, new_episode: bool) -> torch.Tensor:
         """Actor + OU noise for one observation (1, obs_dim)."""
@@ -157,7 +139,7 @@ class Learner:
     def state_dict(self) -> dict:
         return {"loss": self.loss.state_dict(), "actor_optim": self.actor_optim.state_dict(),
                 "critic_optim": self.critic_optim.state_dict(), "buffer": self.buffer.state_dict(),
-                "noise": self.noise.to_dict(), "generator": self.generator_state.clone(), "updates": self.updates}
+                "noise": self.noise.to_dict(), **super().state_dict()}
 
     def load_state_dict(self, state: dict) -> None:
         self.loss.load_state_dict(state["loss"])
@@ -165,19 +147,16 @@ class Learner:
         self.critic_optim.load_state_dict(state["critic_optim"])
         self.buffer.load_state_dict(state["buffer"])
         self.noise = TensorDict(state["noise"], batch_size=[1])
-        self.generator_state = state["generator"].clone()
-        self.updates = int(state["updates"])
+        super().load_state_dict(state)
 
 
-class DDPG:
+class DDPG(PerSeedLearners):
     """S independent DDPG learners behind the runner's agent interface."""
 
     Config = DDPGConfig
 
     def __init__(self, cfg: DDPGConfig, seeds: Sequence[int], obs_dim: int, box: Bounded):
-        torch_seeds = SeedStreams(seeds, LEARNER_STREAM).seed_for_torch()
-        self.learners = [Learner(cfg, obs_dim, box, s) for s in torch_seeds]
-        self.new_episode = torch.ones(len(seeds), dtype=torch.bool)
+        super().__init__(seeds, lambda torch_seed: Learner(cfg, obs_dim, box, torch_seed))
 
     @classmethod
     def resolve_config(cls, cfg: DDPGConfig, env) -> DDPGConfig:
@@ -195,33 +174,4 @@ class DDPG:
         return num_seeds * cfg.buffer_size * 4 * (2 * dim + act + 4)
 
     def act(self, td) -> torch.Tensor:
-        obs = td.get("observation").to(torch.float32)
-        actions = [learner.act(obs[i:i + 1], bool(self.new_episode[i])) for i, learner in enumerate(self.learners)]
-        return torch.cat(actions).to(torch.float64)
-
-    def observe(self, td, active=None) -> None:
-        nxt = td.get("next")
-        S = len(self.learners)
-        active = torch.ones(S, dtype=torch.bool) if active is None else active
-        f32 = lambda t: t.to(torch.float32)  # noqa: E731
-        batch = TensorDict({
-            "observation": f32(td.get("observation")), "action": f32(td.get("action")),
-            "next": {"observation": f32(nxt.get("observation")), "reward": f32(nxt.get("reward")),
-                     "done": nxt.get("done"), "terminated": nxt.get("terminated")}}, batch_size=[S])
-        for i in active.nonzero()[:, 0].tolist():
-            self.learners[i].learn(batch[i:i + 1])
-        self.new_episode = nxt.get("done").reshape(S).clone()
-
-    def episode_stats(self) -> dict:
-        return {"updates": torch.tensor([learner.updates for learner in self.learners])}
-
-    def state_dict(self) -> dict:
-        return {"learners": [learner.state_dict() for learner in self.learners],
-                "new_episode": self.new_episode.clone()}
-
-    def load_state_dict(self, state: dict) -> None:
-        if len(state["learners"]) != len(self.learners):
-            raise ValueError(f"ddpg state is for {len(state['learners'])} seeds, not {len(self.learners)}")
-        for learner, s in zip(self.learners, state["learners"]):
-            learner.load_state_dict(s)
-        self.new_episode.copy_(state["new_episode"])
+        return super().act(td).to(torch.float64)
