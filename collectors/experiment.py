@@ -19,7 +19,7 @@ import pandas as pd
 
 from trl_dgpq.agents import AGENTS, make_agent
 from trl_dgpq.config import find_leaf, from_dict, leaves, setting, to_dict, with_overrides
-from trl_dgpq.envs import ENVS, make_env
+from trl_dgpq.envs import ENVS, check_env_name, env_class, env_configs, make_env
 from trl_dgpq.presets import PRESETS, preset_overrides
 
 from .online import OnlineCollector
@@ -57,7 +57,8 @@ def parse_seeds(text) -> List[int]:
 @dataclass
 class RunConfig:
     """What to run."""
-    env: str = setting("square", "environment", choices=tuple(ENVS))
+    env: str = setting("square", f"environment: {', '.join(ENVS)} or gym:ID (a gymnasium id with discrete "
+                                  "actions, e.g. gym:CartPole-v1)", parse=check_env_name)
     agent: str = setting("dgpq", "agent", choices=tuple(AGENTS))
     preset: Optional[str] = setting(None, "named settings of (env, agent) in trl_dgpq/presets.py "
                                           "(default: the env's default preset)")
@@ -65,11 +66,15 @@ class RunConfig:
                                                       "list a,b,c; all run in one batch",
                                      parse=lambda v: tuple(parse_seeds(v)))
     episodes: int = setting(50, "episodes per seed")
+    env_steps: int = setting(0, "budget of environment steps per seed: a seed stops at the end of the episode "
+                                "that reaches it (0: none; episodes still caps)")
     checkpoint_every: int = setting(10, "checkpoint every K episodes per seed (0: only on interrupt and at the end)")
 
     def check(self) -> "RunConfig":
         if self.episodes < 1:
             raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        if self.env_steps < 0:
+            raise ValueError(f"env_steps must be >= 0, got {self.env_steps}")
         if self.checkpoint_every < 0:
             raise ValueError(f"checkpoint_every must be >= 0, got {self.checkpoint_every}")
         return self
@@ -77,7 +82,7 @@ class RunConfig:
 
 def classes(run: dict):
     """(env class, agent class) of a run section."""
-    return ENVS[run["env"]], AGENTS[run["agent"]]
+    return env_class(run["env"]), AGENTS[run["agent"]]
 
 
 def split_overrides(settings: Dict[str, Any], env_cls, agent_cls) -> Dict[str, Dict[str, Any]]:
@@ -123,7 +128,7 @@ def resolve_config(settings: Optional[Dict[str, Any]] = None, base: Optional[dic
     run = with_overrides(start, run_settings(settings)).check()
     if base and (run.env, run.agent) != (base["run"]["env"], base["run"]["agent"]):
         raise ValueError("a recorded config keeps its env and agent; start a new run to change them")
-    env_cls, agent_cls = ENVS[run.env], AGENTS[run.agent]
+    env_cls, agent_cls = env_class(run.env), AGENTS[run.agent]
     given = split_overrides(settings, env_cls, agent_cls)
     if base:
         env_cfg = from_dict(env_cls.Config, base["env"])
@@ -200,7 +205,7 @@ def run_experiment(config: dict, progress: bool = True, max_total_steps: Optiona
     check_memory(config)
     env, agent = build(config, seeds)
     collector = OnlineCollector(env, agent, config["run"]["episodes"], max_total_steps=max_total_steps,
-                                progress=progress, desc=describe(config))
+                                progress=progress, desc=describe(config), env_steps=config["run"]["env_steps"])
     df = collector.run()
     df.attrs["step_seconds"] = collector.step_seconds
     return df
@@ -216,7 +221,7 @@ def cli_owners():
     """{key: [(config class name, leaf), ...]}: every config that has a setting of that name
     (``--reward`` belongs to several envs, with different defaults and choices)."""
     out = {}
-    for cls in [RunConfig] + [e.Config for e in ENVS.values()] + [a.Config for a in AGENTS.values()]:
+    for cls in [RunConfig] + env_configs() + [a.Config for a in AGENTS.values()]:
         for leaf in leaves(cls):
             out.setdefault(leaf.key, []).append((cls.__name__, leaf))
     return out

@@ -39,25 +39,29 @@ COLUMNS = ["seed", "episode", "steps", "return", "terminated", "wall_s", "cpu_s"
 class OnlineCollector:
     """Runs ``episodes`` episodes for every seed of ``env`` (or stops after
     ``max_total_steps`` batched steps in one ``run`` call) and returns one row per
-    finished episode.
+    finished episode. With ``env_steps`` > 0, a seed also stops at the end of the
+    episode in which its environment steps (all episodes together) reach it: a budget
+    of samples, for comparing learners by the experience they had.
 
     ``step_seconds`` holds the wall time of every batched step (for benchmarks).
     """
 
-    ACCUMULATORS = ("episode", "steps", "ret", "wall", "cpu", "active")
+    ACCUMULATORS = ("episode", "steps", "ret", "wall", "cpu", "active", "env_steps_done")
 
     def __init__(self, env, agent, episodes: int, max_total_steps: Optional[int] = None,
-                 progress: bool = True, desc: str = "episodes"):
+                 progress: bool = True, desc: str = "episodes", env_steps: int = 0):
         if int(episodes) != episodes or episodes < 1:
             raise ValueError(f"episodes must be a positive integer, got {episodes}")
-        self.env, self.agent, self.episodes = env, agent, int(episodes)
+        if int(env_steps) != env_steps or env_steps < 0:
+            raise ValueError(f"env_steps must be a non-negative integer, got {env_steps}")
+        self.env, self.agent, self.episodes, self.env_steps = env, agent, int(episodes), int(env_steps)
         self.max_total_steps = max_total_steps
         self.progress, self.desc = progress, desc
         self.step_seconds: list[float] = []
         S = env.batch_size[0]
         self.seeds = list(getattr(env, "seeds", range(S)))
         zeros = lambda dtype=torch.float64: torch.zeros(S, dtype=dtype)  # noqa: E731
-        self.episode, self.steps = zeros(torch.long), zeros(torch.long)
+        self.episode, self.steps, self.env_steps_done = zeros(torch.long), zeros(torch.long), zeros(torch.long)
         self.ret, self.wall, self.cpu = zeros(), zeros(), zeros()
         self.active = torch.ones(S, dtype=torch.bool)
         self.total = 0      # batched steps so far
@@ -80,7 +84,7 @@ class OnlineCollector:
         env, agent = self.env, self.agent
         S = env.batch_size[0]
         rows = []
-        bar = tqdm(total=S * self.episodes, initial=self.episodes_done, desc=self.desc,
+        bar = tqdm(total=None if self.env_steps else S * self.episodes, initial=self.episodes_done, desc=self.desc,
                    disable=not self.progress, leave=False, mininterval=0.5)
         td = env.reset() if self.td is None else self.td
         steps_here = 0
@@ -99,6 +103,7 @@ class OnlineCollector:
             self._check_finite(r, nxt.get("observation"), active)
             n_active = int(active.sum())
             self.steps += active
+            self.env_steps_done += active
             self.ret += torch.where(active, r, 0.0)
             self.wall += active * (dt / n_active)
             self.cpu += active * (dc / n_active)
@@ -149,6 +154,8 @@ class OnlineCollector:
         for name in ("steps", "ret", "wall", "cpu"):
             getattr(self, name)[ended] = 0
         self.active &= self.episode < self.episodes
+        if self.env_steps:  # only at the end of a seed's own episode
+            self.active &= ~(ended & (self.env_steps_done >= self.env_steps))
         return rows
 
     def state_dict(self) -> dict:
@@ -156,6 +163,7 @@ class OnlineCollector:
                 **{name: getattr(self, name).clone() for name in self.ACCUMULATORS}}
 
     def load_state_dict(self, state: dict) -> None:
+        state = {"env_steps_done": self.steps.clone(), **state}  # checkpoints from before budgets: none used
         for name in self.ACCUMULATORS:
             if state[name].shape != getattr(self, name).shape:
                 raise ValueError(f"collector state is for {state[name].shape[0]} seeds, not {len(self.seeds)}")

@@ -300,7 +300,8 @@ def _alive(pid) -> bool:
 def _execute(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: bool) -> pd.DataFrame:
     run = config["run"]
     env, agent = build(config)
-    collector = OnlineCollector(env, agent, run["episodes"], progress=progress, desc=describe(config))
+    collector = OnlineCollector(env, agent, run["episodes"], progress=progress, desc=describe(config),
+                                env_steps=run["env_steps"])
     csv_bytes = 0
     if checkpoint is not None:
         env.load_state_dict(checkpoint["env"])

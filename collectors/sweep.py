@@ -35,11 +35,13 @@ from typing import Callable, Dict, List, Optional
 
 import pandas as pd
 
+from trl_dgpq.config import leaves
+
 from . import runner
-from .experiment import describe, resolve_config
+from .experiment import RunConfig, describe, resolve_config
 
 SWEEP, REPORT = "sweep.json", "report.json"
-EXPERIMENT_KEYS = {"name", "env", "agent", "preset", "seeds", "episodes", "checkpoint_every", "set"}
+EXPERIMENT_KEYS = {"name", "set"} | {leaf.key for leaf in leaves(RunConfig)}
 BACKENDS = ("local", "ray")
 
 

@@ -12,7 +12,7 @@ from trl_dgpq.bounds import box_covering, section5
 from trl_dgpq.collectors.experiment import RunConfig, cli_leaves, resolve_config
 from trl_dgpq.config import find_leaf, from_dict, leaves, nested, setting, to_dict, with_overrides
 from trl_dgpq.dgpq import DGPQConfig
-from trl_dgpq.envs import ENVS
+from trl_dgpq.envs import ENVS, env_class, env_configs
 from trl_dgpq.presets import DEFAULT_PRESET, PRESETS
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -33,7 +33,7 @@ def test_no_hand_written_hyperparameter_flags():
     dests = {a.dest for a in parser._actions} - {"help"}
     generated = set(cli_leaves())
     assert dests - generated == set(train.PROCESS_FLAGS)
-    every_leaf = {leaf.key for cls in [RunConfig] + [e.Config for e in ENVS.values()] + [a.Config for a in AGENTS.values()]
+    every_leaf = {leaf.key for cls in [RunConfig] + env_configs() + [a.Config for a in AGENTS.values()]
                   for leaf in leaves(cls)}
     assert every_leaf <= dests
     assert all(leaf.help for leaf in cli_leaves().values())
@@ -80,7 +80,7 @@ def test_presets_hold_only_overrides_of_known_settings():
     for (env, agent), table in PRESETS.items():
         assert DEFAULT_PRESET[env] in table, (env, agent)
         for name, preset in table.items():
-            for section, owner in (("env", ENVS[env].Config), ("agent", AGENTS[agent].Config)):
+            for section, owner in (("env", env_class(env).Config), ("agent", AGENTS[agent].Config)):
                 for key, value in preset.get(section, {}).items():
                     leaf = find_leaf(owner, key)
                     assert leaf is not None, (env, agent, name, key)
@@ -152,5 +152,5 @@ def test_values_are_parsed_against_the_field_types():
 def test_help_gives_each_configs_default_for_a_shared_flag():
     """--gamma is DGPQ's (0.01) and DDPG's (0.99); --reward is the square's and liquidation's."""
     text = " ".join(train.make_parser().format_help().split())
-    assert "[DGPQ: 0.01; DDPG: 0.99]" in text
+    assert "[DGPQ: 0.01; DDPG: 0.99; DQN: 0.99]" in text
     assert "Square: shaped {shaped, paper}; Liquidation: shortfall {shortfall, utility-ratio}" in text

@@ -1,0 +1,211 @@
+"""Gymnasium environments with discrete actions (``--env gym:ID``), through TorchRL's
+``GymEnv``, batched over seeds.
+
+One TorchRL ``GymEnv`` per seed: seed i's instance is reset with ``seed=i`` the first
+time and then draws from its own ``np_random``, so seed i alone is seed i in any
+batch. (TorchRL's ``SerialEnv`` seeds its members ``seed, seed + 1, ...`` from one
+number, which ties a seed's stream to its place in the batch.)
+
+Observations are mapped affinely onto the unit box [0, 1]^d and clipped to it, so
+that DGPQ's lengthscale and L_Q mean what they mean on the square. The bounds are
+``obs_low``/``obs_high`` when given, else ``BOUNDS`` below (documented per env where
+gymnasium's are infinite or far wider than what an episode visits), else the
+observation space's own; a dimension still unbounded is squashed by
+(1 + tanh x) / 2 instead. Actions are indices in [0, n). The step cap is gymnasium's
+``max_episode_steps`` unless ``max_steps`` is set (gymnasium's own ``TimeLimit`` is
+built with the same cap, so the two never disagree).
+
+Exact resume: each seed's gymnasium env (its wrappers' and the unwrapped env's
+attributes: physics state, ``np_random``, step counters) is pickled into the state
+dict and copied back attribute by attribute; an env that cannot be pickled is
+refused with a clear error when saving.
+"""
+from __future__ import annotations
+
+import functools
+import math
+import pickle
+from dataclasses import dataclass, replace
+from typing import Optional, Tuple
+
+import gymnasium
+import numpy as np
+import torch
+from tensordict import TensorDict
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import GymEnv
+
+from trl_dgpq.config import setting
+
+from .base import SeedBatchedEnv
+
+PREFIX = "gym:"
+
+# (low, high) of the observation where gymnasium's bounds are infinite or much wider
+# than reachable; a step out of them is clipped onto the box's face.
+BOUNDS = {
+    # x: the episode ends past +-2.4; velocities: beyond what a surviving pole reaches
+    # (|x'| < 3, |theta'| < 3.5 in 10^5 random and trained steps); theta ends past +-12 deg.
+    "CartPole-v1": ((-2.4, -3.0, -0.2095, -3.5), (2.4, 3.0, 0.2095, 3.5)),
+    # MountainCar-v0 and Acrobot-v1: gymnasium's own bounds are finite and used as they are.
+}
+
+
+@dataclass
+class GymConfig:
+    """A gymnasium env with discrete actions (--env gym:ID)."""
+    max_steps: int = setting(0, "step cap per episode (0: the env's registered max_episode_steps)")
+    obs_low: Tuple[float, ...] = setting((), "lower observation bounds mapped to 0 (empty: documented or "
+                                             "gymnasium's)")
+    obs_high: Tuple[float, ...] = setting((), "upper observation bounds mapped to 1 (empty: documented or "
+                                              "gymnasium's)")
+
+    def check(self) -> "GymConfig":
+        if self.max_steps < 0:
+            raise ValueError(f"max_steps must be >= 0 (0: gymnasium's), got {self.max_steps}")
+        if bool(self.obs_low) != bool(self.obs_high):
+            raise ValueError("give obs_low and obs_high together")
+        if self.obs_low and not all(math.isfinite(lo) and math.isfinite(hi) and lo < hi
+                                    for lo, hi in zip(self.obs_low, self.obs_high)):
+            raise ValueError(f"need finite obs_low < obs_high, got {list(self.obs_low)} and {list(self.obs_high)}")
+        return self
+
+
+@functools.cache
+def describe(gym_id: str):
+    """(number of actions, observation low, high, registered max_episode_steps) of a
+    gymnasium id, or a one-line ValueError for ids the suite cannot run."""
+    try:
+        spec = gymnasium.spec(gym_id)
+    except gymnasium.error.Error as e:
+        raise ValueError(f"unknown gymnasium id {gym_id!r}: {e}") from None
+    env = gymnasium.make(gym_id)
+    try:
+        act, obs = env.action_space, env.observation_space
+    finally:
+        env.close()
+    if not isinstance(act, gymnasium.spaces.Discrete):
+        raise ValueError(f"gym:{gym_id} has {type(act).__name__} actions; the suite's agents (DGPQ, DQN) "
+                         f"need discrete ones (gymnasium Discrete)")
+    if act.start != 0:
+        raise ValueError(f"gym:{gym_id}: discrete actions must start at 0, they start at {act.start}")
+    if not (isinstance(obs, gymnasium.spaces.Box) and len(obs.shape) == 1):
+        raise ValueError(f"gym:{gym_id} observations must be a flat Box, got {obs}")
+    return int(act.n), obs.low.astype(np.float64), obs.high.astype(np.float64), spec.max_episode_steps
+
+
+class GymSeedEnv(SeedBatchedEnv):
+    """TorchRL env, ``batch_size=[len(seeds)]``, over one gymnasium id (``gym_env(id)``
+    makes the class); observations float64 ``(S, d)`` in the unit box."""
+
+    Config = GymConfig
+    gym_id: str = ""
+
+    def __init__(self, seeds=(0,), cfg: GymConfig | None = None, device="cpu", **overrides):
+        cfg = replace(cfg if cfg is not None else GymConfig(), **overrides).check()
+        n, low, high, registered = describe(self.gym_id)
+        if not cfg.max_steps:
+            if not registered:
+                raise ValueError(f"gym:{self.gym_id} has no registered max_episode_steps: set max_steps")
+            cfg = replace(cfg, max_steps=registered)
+        if cfg.obs_low:
+            low, high = np.asarray(cfg.obs_low, float), np.asarray(cfg.obs_high, float)
+            if low.shape != (len(describe(self.gym_id)[1]),):
+                raise ValueError(f"gym:{self.gym_id} observations have {len(describe(self.gym_id)[1])} "
+                                 f"dimensions; obs_low/obs_high have {len(low)}")
+        elif self.gym_id in BOUNDS:
+            low, high = (np.asarray(b, float) for b in BOUNDS[self.gym_id])
+        self.n_actions = n
+        self.low, self.high = torch.tensor(low), torch.tensor(high)
+        self.squash = ~(torch.isfinite(self.low) & torch.isfinite(self.high))
+        super().__init__(seeds, cfg, device)
+        self.envs = []
+        try:
+            for _ in self.seeds:
+                self.envs.append(GymEnv(self.gym_id, categorical_action_encoding=True,
+                                        max_episode_steps=self.max_steps))
+        except Exception:
+            self.close(raise_if_closed=False)
+            raise
+        self.started = torch.zeros(self.num_seeds, dtype=torch.bool)
+        self.obs = torch.zeros(self.num_seeds, len(low), dtype=torch.float64, device=self.device)
+
+    def _make_specs(self) -> None:
+        S, d = self.num_seeds, self.low.numel()
+        self.observation_spec = Composite(
+            observation=Bounded(0.0, 1.0, shape=(S, d), dtype=torch.float64, device=self.device),
+            shape=(S,), device=self.device)
+        self.action_spec = Categorical(self.n_actions, shape=(S,), device=self.device)
+        self.reward_spec = Unbounded(shape=(S, 1), dtype=torch.float64, device=self.device)
+
+    def to_unit_box(self, raw: torch.Tensor) -> torch.Tensor:
+        """Raw gymnasium observations (..., d) -> [0, 1]^d."""
+        raw = raw.to(torch.float64)
+        span = torch.where(self.squash, 1.0, self.high - self.low)
+        affine = (raw - torch.where(self.squash, 0.0, self.low)) / span
+        return torch.where(self.squash, 0.5 * (1 + torch.tanh(raw)), affine).clamp(0.0, 1.0)
+
+    def _initial(self, mask):
+        for i in mask.nonzero()[:, 0].tolist():
+            # the first reset seeds this instance's np_random; later ones continue it
+            kwargs = {} if self.started[i] else {"seed": self.seeds[i]}
+            self.obs[i] = self.to_unit_box(self.envs[i].reset(**kwargs).get("observation"))
+            self.started[i] = True
+        return self._td(observation=self.obs.clone())
+
+    def _transition(self, action):
+        S = self.num_seeds
+        reward = torch.zeros(S, dtype=torch.float64)
+        terminated = torch.zeros(S, dtype=torch.bool)
+        for i, (env, a) in enumerate(zip(self.envs, action.tolist())):
+            # GymEnv._step: our step already checked the action; EnvBase.step's checks
+            # would cost as much again as gymnasium's physics
+            out = env._step(TensorDict({"action": torch.tensor(a)}, []))
+            self.obs[i] = self.to_unit_box(out.get("observation"))
+            reward[i] = out.get("reward").item()
+            terminated[i] = out.get("terminated").item()
+        return self._td(observation=self.obs.clone()), reward, terminated
+
+    # ------------------------------------------------------------- state
+    def state_dict(self, *args, **kwargs) -> dict:
+        try:
+            gym_states = [pickle.dumps([_attributes(layer) for layer in _layers(env._env)]) for env in self.envs]
+        except Exception as e:  # e.g. an env holding a simulator handle
+            raise ValueError(f"gym:{self.gym_id} cannot be checkpointed (its state does not pickle: {e}); "
+                             f"run with checkpoint_every=0 and without interrupting") from None
+        return {**super().state_dict(), "started": self.started.clone(), "obs": self.obs.clone(),
+                "gym": gym_states}
+
+    def load_state_dict(self, state: dict, strict: bool = True) -> None:
+        super().load_state_dict(state, strict)
+        self.started.copy_(state["started"])
+        self.obs.copy_(state["obs"])
+        for env, data in zip(self.envs, state["gym"]):
+            for layer, saved in zip(_layers(env._env), pickle.loads(data)):
+                vars(layer).update(saved)
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        for env in getattr(self, "envs", ()):
+            env.close(raise_if_closed=False)
+        super().close(raise_if_closed=raise_if_closed)
+
+
+def _layers(env) -> list:
+    """A gymnasium env's wrappers, outside in, then the unwrapped env."""
+    out = [env]
+    while isinstance(env, gymnasium.Wrapper):
+        env = env.env
+        out.append(env)
+    return out
+
+
+def _attributes(layer) -> dict:
+    """A layer's own state: its attributes without the link to the layer inside."""
+    return {k: v for k, v in vars(layer).items() if k != "env"}
+
+
+@functools.cache
+def gym_env(gym_id: str) -> type:
+    """The env class of gymnasium id ``gym_id`` (refused here if the suite cannot run it)."""
+    describe(gym_id)
+    return type(f"Gym[{gym_id}]", (GymSeedEnv,), {"gym_id": gym_id, "__module__": __name__})

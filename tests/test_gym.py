@@ -1,0 +1,153 @@
+"""Gymnasium envs through TorchRL's GymEnv, batched over seeds (envs/gym.py)."""
+import math
+import subprocess
+import sys
+
+import gymnasium
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from torchrl.envs.utils import check_env_specs
+
+from trl_dgpq.collectors.experiment import TIMING_COLUMNS, resolve_config, run_experiment
+from trl_dgpq.envs import GYM_ENVS, env_class, make_env
+
+from test_run import TRAIN
+
+
+@pytest.mark.parametrize("name", GYM_ENVS)
+def test_specs_hold_through_our_wrapper(name):
+    env = make_env(name, None, [0, 5])
+    check_env_specs(env, seed=None)
+    roll = env.rollout(60, break_when_any_done=False)
+    obs = roll["next", "observation"]
+    assert obs.dtype == torch.float64 and obs.min() >= 0 and obs.max() <= 1
+    env.close()
+
+
+def raw_trajectory(gym_id, seed, actions, episodes_reset=True):
+    """Plain gymnasium: observations, rewards and terminations for the action list."""
+    env = gymnasium.make(gym_id)
+    obs, _ = env.reset(seed=seed)
+    out = [obs]
+    rewards, terms = [], []
+    for a in actions:
+        obs, r, term, trunc, _ = env.step(a)
+        rewards.append(r)
+        terms.append(term)
+        if term or trunc:
+            obs, _ = env.reset()
+        out.append(obs)
+    return np.array(out), np.array(rewards), np.array(terms)
+
+
+def test_cartpole_equals_plain_gymnasium_mapped_to_the_unit_box():
+    """Seed 7's observations are gymnasium's reset(seed=7) trajectory through x -> (x - low) / (high - low)
+    with the documented bounds (x +-2.4, x' +-3, theta +-0.2095, theta' +-3.5), clipped; rewards 1 and the
+    terminations are gymnasium's, across an episode's end (later resets continue the seed's stream)."""
+    actions = [(t // 3) % 2 for t in range(80)]
+    raw, rewards, terms = raw_trajectory("CartPole-v1", 7, actions)
+    assert terms.sum() >= 2
+    env = make_env("gym:CartPole-v1", None, [3, 7])
+    td = env.reset()
+    low, high = np.array([-2.4, -3.0, -0.2095, -3.5]), np.array([2.4, 3.0, 0.2095, 3.5])
+    for t, a in enumerate(actions):
+        expect = np.clip((raw[t] - low) / (high - low), 0, 1)
+        np.testing.assert_allclose(td["observation"][1].numpy(), expect, rtol=0, atol=1e-6)
+        td["action"] = torch.tensor([0, a])
+        out, td = env.step_and_maybe_reset(td)
+        assert out["next", "reward"][1].item() == rewards[t]
+        assert out["next", "terminated"][1].item() == terms[t]
+    env.close()
+
+
+@pytest.mark.filterwarnings("ignore:.*out of date")
+def test_infinite_bounds_without_documented_ones_are_squashed():
+    """CartPole-v0 has no BOUNDS entry: its finite dims (x +-4.8, theta +-0.4189) map affinely,
+    the infinite velocities through (1 + tanh v) / 2."""
+    env = make_env("gym:CartPole-v0", None, [0])
+    raw = torch.tensor([[1.2, -0.5, 0.1, 2.0]])
+    th = 12 * 2 * math.pi / 360 * 2  # gymnasium's theta bound
+    expect = [(1.2 + 4.8) / 9.6, (1 + math.tanh(-0.5)) / 2, (0.1 + th) / (2 * th), (1 + math.tanh(2.0)) / 2]
+    np.testing.assert_allclose(env.to_unit_box(raw)[0].numpy(), expect, rtol=1e-6)
+    env.close()
+
+
+def test_given_bounds_and_step_cap():
+    car = env_class("gym:MountainCar-v0")
+    env = car([0], obs_low=(-1.2, -0.07), obs_high=(0.6, 0.07), max_steps=25)
+    np.testing.assert_allclose(env.to_unit_box(torch.tensor([[-0.3, 0.0]]))[0].numpy(), [0.5, 0.5])
+    td = env.reset()
+    for t in range(25):
+        assert t == 0 or not out["next", "done"].item()
+        td["action"] = torch.tensor([1])
+        out, td = env.step_and_maybe_reset(td)
+    assert out["next", "truncated"].item() and not out["next", "terminated"].item()
+    assert make_env("gym:MountainCar-v0", None, [0]).max_steps == 200  # gymnasium's registered cap
+    with pytest.raises(ValueError, match="2 dimensions"):
+        car([0], obs_low=(0.0,), obs_high=(1.0,))
+
+
+def test_batch_composition_invariance_on_cartpole():
+    """Seed 4 alone equals seed 4 among others, for the env and for DGPQ and DQN on it."""
+    for agent, extra in (("dgpq", {}), ("dqn", dict(batch_size=8, learning_starts=16, train_freq=4, hidden=(16,),
+                                                    exploration_steps=100))):
+        cfg = dict(env="gym:CartPole-v1", agent=agent, episodes=6, **extra)
+        both = run_experiment(resolve_config(seeds=[2, 4, 9], **cfg), progress=False)
+        alone = run_experiment(resolve_config(seeds=[4], **cfg), progress=False)
+        pd.testing.assert_frame_equal(both[both.seed == 4].reset_index(drop=True).drop(columns=list(TIMING_COLUMNS)),
+                                      alone.drop(columns=list(TIMING_COLUMNS)))
+        assert not both[both.seed == 2]["steps"].reset_index(drop=True).equals(alone["steps"])
+
+
+def test_tiny_dqn_and_dgpq_rollouts_on_cartpole():
+    for agent in ("dqn", "dgpq"):
+        extra = dict(batch_size=8, learning_starts=8, train_freq=4, gradient_steps=1, hidden=(16,)) \
+            if agent == "dqn" else {}
+        df = run_experiment(resolve_config(env="gym:CartPole-v1", agent=agent, seeds=[0, 1], episodes=100,
+                                           env_steps=150, **extra), progress=False)
+        per_seed = df.groupby("seed").steps
+        assert (per_seed.sum() >= 150).all() and ((per_seed.sum() - df.groupby("seed").steps.last()) < 150).all()
+        assert df.terminated.any() and (df["return"] == df.steps).all()  # +1 per step
+        if agent == "dqn":
+            assert df.updates.max() > 0
+
+
+def test_state_round_trip_mid_episode():
+    env = make_env("gym:Acrobot-v1", None, [0, 1])
+    td = env.reset()
+    for _ in range(7):
+        td["action"] = torch.tensor([0, 2])
+        _, td = env.step_and_maybe_reset(td)
+    state = env.state_dict()
+    fresh = make_env("gym:Acrobot-v1", None, [0, 1])
+    fresh.reset()
+    fresh.load_state_dict(state)
+    for _ in range(5):
+        a = torch.tensor([1, 0])
+        x = env.step(td.set("action", a))["next", "observation"]
+        y = fresh.step(td.clone().set("action", a))["next", "observation"]
+        assert torch.equal(x, y)
+        td = td.set("observation", x)
+
+
+@pytest.mark.parametrize("name, message", [
+    ("gym:Pendulum-v1", "gym:Pendulum-v1 has Box actions; the suite's agents (DGPQ, DQN) need discrete ones"),
+    ("gym:NoSuchEnv-v0", "unknown gymnasium id"),
+    ("gym:", "unknown env 'gym:'"),
+])
+def test_unusable_ids_are_refused_in_one_line(name, message):
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        env_class(name)
+    proc = subprocess.run([sys.executable, str(TRAIN), "--env", name, "--episodes", "1", "--no-progress"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert message.split(";")[0] in proc.stderr.strip().splitlines()[-1]
+
+
+@pytest.mark.filterwarnings("ignore:.*out of date")
+def test_any_discrete_id_runs_with_defaults():
+    cfg = resolve_config(env="gym:CartPole-v0", agent="random", seeds=[0], episodes=2)
+    assert cfg["run"]["preset"] == "default"
+    assert len(run_experiment(cfg, progress=False)) == 2
