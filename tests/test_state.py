@@ -138,6 +138,14 @@ AGENT_CASES = {
     # push: pybullet worlds saved as .bullet bytes
     "dgpq-push": dict(env="push", agent="dgpq", max_steps=12),
     "oracle": dict(env="push", agent="oracle", max_steps=12),
+    # DQN: updates from the 8th step, a target copy every 10; gymnasium envs pickled per seed
+    "dqn": dict(agent="dqn", batch_size=8, buffer_size=64, learning_starts=8, hidden=(16,), target_update_interval=10,
+                exploration_steps=50, max_steps=30),
+    "dqn-cartpole": dict(env="gym:CartPole-v1", agent="dqn", batch_size=8, buffer_size=64, learning_starts=8,
+                         train_freq=2, gradient_steps=2, hidden=(16,), max_steps=30),
+    "dgpq-acrobot": dict(env="gym:Acrobot-v1", agent="dgpq", max_steps=20),
+    # the noisy square: its reward-noise stream saved with the env
+    "dgpq-noisy": dict(agent="dgpq", preset="noisy", max_steps=40),
 }
 
 

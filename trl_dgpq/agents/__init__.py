@@ -3,12 +3,13 @@
 from ..dgpq import DGPQ
 from .base import Agent
 from .ddpg import DDPG
+from .dqn import DQN
 from .oracle import OraclePusher
 from .random import RandomAgent
 from .schedule import ACOptimalPolicy, TWAPPolicy
 
 AGENTS = {"dgpq": DGPQ, "random": RandomAgent, "ac-optimal": ACOptimalPolicy, "twap": TWAPPolicy, "ddpg": DDPG,
-          "oracle": OraclePusher}
+          "oracle": OraclePusher, "dqn": DQN}
 
 
 def make_agent(name: str, cfg, env, seeds):
