@@ -187,3 +187,28 @@ def test_parse_seeds():
     for bad in ("0", "5-2", "1,1", "x", "-3"):
         with pytest.raises(ValueError):
             parse_seeds(bad)
+
+
+def test_reward_noise_is_gaussian_and_leaves_the_moves_alone():
+    """With reward_noise 0.3, reward - (2 - |goal - s|) has mean ~0 and s.d. ~0.3 over 4,000
+    seed-steps, and positions equal the noise-free env's (the noise has its own stream); seed 1's
+    noise is the same alone as beside seed 0."""
+    quiet, noisy, alone = SquareEnv([0, 1]), SquareEnv([0, 1], reward_noise=0.3), SquareEnv([1], reward_noise=0.3)
+    for env in (quiet, noisy, alone):
+        env.reset()
+    gen = torch.Generator().manual_seed(0)
+    residuals = []
+    for _ in range(2000):
+        a = torch.randint(4, (2,), generator=gen)
+        q = quiet.step(quiet._td(action=a))["next"]
+        n = noisy.step(noisy._td(action=a))["next"]
+        s = alone.step(alone._td(action=a[1:]))["next"]
+        assert torch.equal(q["observation"], n["observation"])
+        assert torch.equal(n["reward"][1], s["reward"][0])
+        residuals.append(n["reward"][:, 0] - q["reward"][:, 0])
+        for env in (quiet, noisy, alone):
+            env.pos.zero_()  # stay away from the goal: no episode ends
+    r = torch.cat(residuals)
+    assert abs(r.mean().item()) < 0.03 and r.std().item() == pytest.approx(0.3, rel=0.05)
+    with pytest.raises(ValueError, match="reward_noise"):
+        SquareEnv([0], reward_noise=-0.1)

@@ -154,14 +154,14 @@ def test_every_agent_has_a_resume_case():
 
 
 @pytest.mark.parametrize("case", sorted(AGENT_CASES))
-def test_agent_round_trip_mid_run(case):
+def test_agent_round_trip_mid_run(case, env_steps=0, **extra):
     """Run 40 steps, save env + agent + collector, load into fresh objects, run on:
     the rows equal those of the original continuing."""
-    config = resolve_config(seeds=[0, 2], episodes=8, **AGENT_CASES[case])
+    config = resolve_config(seeds=[0, 2], episodes=8, **{**AGENT_CASES[case], **extra})
 
     def collector():
         env, agent = build(config)
-        return OnlineCollector(env, agent, 8, progress=False)
+        return OnlineCollector(env, agent, 8, progress=False, env_steps=env_steps)
     a = collector()
     a.max_total_steps = 40
     a.run()
@@ -174,6 +174,12 @@ def test_agent_round_trip_mid_run(case):
     rest_a, rest_b = a.run(), b.run()
     assert len(rest_a) > 0
     pd.testing.assert_frame_equal(rest_a.drop(columns=list(TIMING_COLUMNS)), rest_b.drop(columns=list(TIMING_COLUMNS)))
+
+
+def test_round_trip_keeps_the_env_steps_budget():
+    """Episodes of 30 steps; seeds stop at the end of the one that reaches 90 steps (the 3rd): a
+    restored collector must remember the steps each seed had taken (40)."""
+    test_agent_round_trip_mid_run("random", env_steps=90, max_steps=30)
 
 
 def episodes(folder):

@@ -1,0 +1,65 @@
+"""scripts/report.py: steps to threshold and performance at a budget, by hand."""
+import json
+
+import pandas as pd
+import pytest
+
+from test_run import load_script
+
+report = load_script("report")
+
+
+def fake_run(folder, env, seeds_steps, returns=None, terminated=None, env_cfg=None, agent="dqn"):
+    """A run folder with the given per-seed episode lengths (returns default to the lengths)."""
+    folder.mkdir(parents=True)
+    rows = []
+    for seed, steps in seeds_steps.items():
+        for i, s in enumerate(steps):
+            rows.append(dict(seed=seed, episode=i + 1, steps=s,
+                             **{"return": (returns or {}).get(seed, steps)[i]},
+                             terminated=(terminated or {}).get(seed, [False] * len(steps))[i],
+                             wall_s=s * 1e-3, cpu_s=0.0, us_per_step=1e3))
+    pd.DataFrame(rows).to_csv(folder / "episodes.csv", index=False)
+    (folder / "config.json").write_text(json.dumps({"run": {"env": env, "agent": agent, "preset": "p"},
+                                                    "env": env_cfg or {}, "agent": {}}))
+    return folder
+
+
+def test_steps_to_threshold_and_budget_by_hand(tmp_path):
+    """CartPole, window 10: 10 episodes of 100, then of 300: the mean of the last 10 first reaches
+    195 after 5 of 300 (200), at 10 x 100 + 5 x 300 = 2,500 steps. At a budget of 2,000 the last
+    10 episodes within it are 7 x 100 + 3 x 300: mean 160."""
+    steps = [100] * 10 + [300] * 10
+    run = fake_run(tmp_path / "a", "gym:CartPole-v1", {0: steps, 1: [20] * 100})
+    df, _ = report.load_run(run)
+    to = report.steps_to_threshold(df, "gym:CartPole-v1")
+    assert to[0] == 2500 and pd.isna(to[1])
+    assert report.at_budget(df, "return", 2000, 10)[0] == pytest.approx(160)
+    assert report.fmt_steps(to) == "never (1/2 seeds met it)"
+    assert report.fmt_steps(pd.Series([2500.0, 1000.0, float("nan")])) == "2,500 (2/3 seeds met it)"
+
+
+def test_mountaincar_flag_and_groups(tmp_path):
+    """MountainCar's threshold is one episode at the flag: seed 0 at 200 + 200 + 150 = 550 steps,
+    seed 2 at 120, seed 1 never: median 550 (within the budget of 600). Square runs with other env settings get their own
+    section and figure, named by what differs."""
+    car = fake_run(tmp_path / "car", "gym:MountainCar-v0", {0: [200, 200, 150], 1: [200] * 3, 2: [120, 200, 200]},
+                   returns={s: [-200] * 3 for s in range(3)},
+                   terminated={0: [False, False, True], 1: [False] * 3, 2: [True, False, False]})
+    quiet = fake_run(tmp_path / "quiet", "square", {0: [40] * 30}, env_cfg={"reward_noise": 0.0, "max_steps": 200})
+    noisy = fake_run(tmp_path / "noisy", "square", {0: [20] * 30}, env_cfg={"reward_noise": 0.1, "max_steps": 200},
+                     agent="dgpq")
+    written, text = report.report([car, quiet, noisy], ["dqn car", "dqn quiet", "dgpq noisy"], tmp_path / "out",
+                                  budget=600)
+    assert "| dqn car | 3 | 550 (2/3 seeds met it) |" in text
+    assert "## square (reward_noise=0.0)" in text and "## square (reward_noise=0.1)" in text
+    assert "| dgpq noisy | 1 | 200 (1/1 seeds met it) | 20 [20, 20] |" in text  # 10 episodes of 20
+    assert "| dqn quiet | 1 | never (0/1 seeds met it) | 40 [40, 40] |" in text
+    assert sorted(p.name for p in written) == ["compare-gym-MountainCar-v0.png", "compare-square-reward_noise=0.0.png",
+                                               "compare-square-reward_noise=0.1.png", "compare.md"]
+    assert all(p.stat().st_size > 0 for p in written)
+
+
+def test_bad_input_is_one_line(tmp_path, capsys):
+    assert report.main([str(tmp_path)]) == 2
+    assert "not a finished run" in capsys.readouterr().err
