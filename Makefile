@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test bench reproduce clean
+.PHONY: run test bench reproduce compare clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -22,6 +22,11 @@ test: $(STAMP)
 
 reproduce: $(STAMP)
 	$(BIN)/python scripts/reproduce.py
+
+compare: $(STAMP)
+	if [ -f runs/compare/sweep.json ]; then $(BIN)/python scripts/sweep.py --resume runs/compare; \
+	else $(BIN)/python scripts/sweep.py configs/compare.toml --out runs/compare --seeds-per-job 5; fi
+	$(BIN)/python scripts/report.py runs/compare/*/ --out runs/compare
 
 bench: $(STAMP)
 	$(BIN)/python scripts/bench.py gp

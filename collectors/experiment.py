@@ -204,8 +204,9 @@ def run_experiment(config: dict, progress: bool = True, max_total_steps: Optiona
     episode. (``trl_dgpq.collectors.runner`` runs into a folder, with checkpoints.)"""
     check_memory(config)
     env, agent = build(config, seeds)
-    collector = OnlineCollector(env, agent, config["run"]["episodes"], max_total_steps=max_total_steps,
-                                progress=progress, desc=describe(config), env_steps=config["run"]["env_steps"])
+    run = load_sections(config)[0]
+    collector = OnlineCollector(env, agent, run.episodes, max_total_steps=max_total_steps,
+                                progress=progress, desc=describe(config), env_steps=run.env_steps)
     df = collector.run()
     df.attrs["step_seconds"] = collector.step_seconds
     return df

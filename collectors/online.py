@@ -163,7 +163,7 @@ class OnlineCollector:
                 **{name: getattr(self, name).clone() for name in self.ACCUMULATORS}}
 
     def load_state_dict(self, state: dict) -> None:
-        state = {"env_steps_done": self.steps.clone(), **state}  # checkpoints from before budgets: none used
+        state = {"env_steps_done": torch.zeros_like(self.steps), **state}  # checkpoints from before budgets had none
         for name in self.ACCUMULATORS:
             if state[name].shape != getattr(self, name).shape:
                 raise ValueError(f"collector state is for {state[name].shape[0]} seeds, not {len(self.seeds)}")

@@ -298,10 +298,10 @@ def _alive(pid) -> bool:
 
 
 def _execute(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: bool) -> pd.DataFrame:
-    run = config["run"]
+    run = load_sections(config)[0]  # with defaults for settings newer than a recorded config
     env, agent = build(config)
-    collector = OnlineCollector(env, agent, run["episodes"], progress=progress, desc=describe(config),
-                                env_steps=run["env_steps"])
+    collector = OnlineCollector(env, agent, run.episodes, progress=progress, desc=describe(config),
+                                env_steps=run.env_steps)
     csv_bytes = 0
     if checkpoint is not None:
         env.load_state_dict(checkpoint["env"])
@@ -309,7 +309,7 @@ def _execute(config: dict, folder: RunFolder, checkpoint: Optional[dict], progre
         collector.load_state_dict(checkpoint["collector"])
         csv_bytes = int(checkpoint["csv_bytes"])
     folder.truncate_csv(csv_bytes)  # rows past the checkpoint will be written again, identically
-    every = run["checkpoint_every"] * len(run["seeds"])
+    every = run.checkpoint_every * len(run.seeds)
     next_at = (collector.episodes_done // every + 1) * every if every else None
 
     def save():

@@ -4,7 +4,8 @@ A subclass describes one domain: its settings are a config dataclass (``Config``
 it builds its specs in ``_make_specs`` and implements ``_initial(mask)`` (reset
 the selected seeds' state, return the observation of all seeds) and
 ``_transition(action)`` (advance every seed, return observation, reward ``(S,)``
-and terminated ``(S,)``); ``_state_names`` lists the tensors that change as it
+and terminated ``(S,)``, and optionally truncated ``(S,)`` where the env has a cap of
+its own); ``_state_names`` lists the tensors that change as it
 runs, so ``state_dict`` can save them. This base handles the per-seed random
 streams, partial resets through the ``_reset`` mask, the step cap (truncation,
 which is not termination), checking actions against the action spec and
@@ -84,9 +85,9 @@ class SeedBatchedEnv(EnvBase):
         return out
 
     def _step(self, tensordict: TensorDictBase) -> TensorDict:
-        out, reward, terminated = self._transition(self.check_action(tensordict.get("action")))
+        out, reward, terminated, *own_cap = self._transition(self.check_action(tensordict.get("action")))
         self.t += 1
-        truncated = (self.t >= self.max_steps) & ~terminated
+        truncated = ((self.t >= self.max_steps) | (own_cap[0] if own_cap else False)) & ~terminated
         out.update({"reward": reward[:, None], "terminated": terminated[:, None],
                     "truncated": truncated[:, None], "done": (terminated | truncated)[:, None]})
         return out

@@ -15,10 +15,12 @@ observation space's own; a dimension still unbounded is squashed by
 ``max_episode_steps`` unless ``max_steps`` is set (gymnasium's own ``TimeLimit`` is
 built with the same cap, so the two never disagree).
 
-Exact resume: each seed's gymnasium env (its wrappers' and the unwrapped env's
-attributes: physics state, ``np_random``, step counters) is pickled into the state
-dict and copied back attribute by attribute; an env that cannot be pickled is
-refused with a clear error when saving.
+Exact resume for gymnasium's classic-control and toy-text envs, whose state is plain
+Python: each seed's env (its wrappers' and the unwrapped env's attributes: physics
+state, ``np_random``, step counters) is pickled into the state dict and copied back
+attribute by attribute. Other envs (simulators holding state outside Python) run
+and write checkpoints without it, and a resume from one is refused with a clear
+error. An env's own cap (truncation before ``max_steps``) ends the episode as ours does.
 """
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ import functools
 import math
 import pickle
 from dataclasses import dataclass, replace
-from typing import Optional, Tuple
+from typing import Tuple
 
 import gymnasium
 import numpy as np
@@ -40,6 +42,8 @@ from trl_dgpq.config import setting
 from .base import SeedBatchedEnv
 
 PREFIX = "gym:"
+# envs whose whole state is plain Python attributes, so a pickle of them is exact
+CHECKPOINTABLE = ("gymnasium.envs.classic_control", "gymnasium.envs.toy_text")
 
 # (low, high) of the observation where gymnasium's bounds are infinite or much wider
 # than reachable; a step out of them is clipped onto the box's face.
@@ -63,8 +67,9 @@ class GymConfig:
     def check(self) -> "GymConfig":
         if self.max_steps < 0:
             raise ValueError(f"max_steps must be >= 0 (0: gymnasium's), got {self.max_steps}")
-        if bool(self.obs_low) != bool(self.obs_high):
-            raise ValueError("give obs_low and obs_high together")
+        if len(self.obs_low) != len(self.obs_high):
+            raise ValueError(f"obs_low and obs_high need one bound per dimension each, got {len(self.obs_low)} "
+                             f"and {len(self.obs_high)}")
         if self.obs_low and not all(math.isfinite(lo) and math.isfinite(hi) and lo < hi
                                     for lo, hi in zip(self.obs_low, self.obs_high)):
             raise ValueError(f"need finite obs_low < obs_high, got {list(self.obs_low)} and {list(self.obs_high)}")
@@ -78,8 +83,11 @@ def describe(gym_id: str):
     try:
         spec = gymnasium.spec(gym_id)
     except gymnasium.error.Error as e:
-        raise ValueError(f"unknown gymnasium id {gym_id!r}: {e}") from None
-    env = gymnasium.make(gym_id)
+        raise ValueError(f"unknown gymnasium id gym:{gym_id}: {e}") from None
+    try:
+        env = gymnasium.make(gym_id)
+    except (gymnasium.error.Error, TypeError, ImportError) as e:  # e.g. a simulator that is not installed
+        raise ValueError(f"gym:{gym_id} cannot be made: {e}") from None
     try:
         act, obs = env.action_space, env.observation_space
     finally:
@@ -109,10 +117,10 @@ class GymSeedEnv(SeedBatchedEnv):
                 raise ValueError(f"gym:{self.gym_id} has no registered max_episode_steps: set max_steps")
             cfg = replace(cfg, max_steps=registered)
         if cfg.obs_low:
+            if len(cfg.obs_low) != len(low):
+                raise ValueError(f"gym:{self.gym_id} observations have {len(low)} dimensions; "
+                                 f"obs_low/obs_high have {len(cfg.obs_low)}")
             low, high = np.asarray(cfg.obs_low, float), np.asarray(cfg.obs_high, float)
-            if low.shape != (len(describe(self.gym_id)[1]),):
-                raise ValueError(f"gym:{self.gym_id} observations have {len(describe(self.gym_id)[1])} "
-                                 f"dimensions; obs_low/obs_high have {len(low)}")
         elif self.gym_id in BOUNDS:
             low, high = (np.asarray(b, float) for b in BOUNDS[self.gym_id])
         self.n_actions = n
@@ -157,6 +165,7 @@ class GymSeedEnv(SeedBatchedEnv):
         S = self.num_seeds
         reward = torch.zeros(S, dtype=torch.float64)
         terminated = torch.zeros(S, dtype=torch.bool)
+        truncated = torch.zeros(S, dtype=torch.bool)  # an env's own cap (gymnasium's TimeLimit is ours)
         for i, (env, a) in enumerate(zip(self.envs, action.tolist())):
             # GymEnv._step: our step already checked the action; EnvBase.step's checks
             # would cost as much again as gymnasium's physics
@@ -164,25 +173,32 @@ class GymSeedEnv(SeedBatchedEnv):
             self.obs[i] = self.to_unit_box(out.get("observation"))
             reward[i] = out.get("reward").item()
             terminated[i] = out.get("terminated").item()
-        return self._td(observation=self.obs.clone()), reward, terminated
+            truncated[i] = out.get("truncated").item()
+        return self._td(observation=self.obs.clone()), reward, terminated, truncated
 
     # ------------------------------------------------------------- state
     def state_dict(self, *args, **kwargs) -> dict:
-        try:
-            gym_states = [pickle.dumps([_attributes(layer) for layer in _layers(env._env)]) for env in self.envs]
-        except Exception as e:  # e.g. an env holding a simulator handle
-            raise ValueError(f"gym:{self.gym_id} cannot be checkpointed (its state does not pickle: {e}); "
-                             f"run with checkpoint_every=0 and without interrupting") from None
-        return {**super().state_dict(), "started": self.started.clone(), "obs": self.obs.clone(),
-                "gym": gym_states}
+        gym = None
+        if self.checkpointable:
+            gym = [pickle.dumps([_attributes(layer) for layer in _layers(env._env)]) for env in self.envs]
+        return {**super().state_dict(), "started": self.started.clone(), "obs": self.obs.clone(), "gym": gym}
 
     def load_state_dict(self, state: dict, strict: bool = True) -> None:
+        if state["gym"] is None:
+            raise ValueError(f"gym:{self.gym_id} cannot continue from a checkpoint: only gymnasium's "
+                             f"{' and '.join(m.split('.')[-1] for m in CHECKPOINTABLE)} envs keep all their "
+                             f"state in Python attributes; start the run again")
         super().load_state_dict(state, strict)
         self.started.copy_(state["started"])
         self.obs.copy_(state["obs"])
         for env, data in zip(self.envs, state["gym"]):
             for layer, saved in zip(_layers(env._env), pickle.loads(data)):
                 vars(layer).update(saved)
+
+    @property
+    def checkpointable(self) -> bool:
+        """Whether a seed's whole state is in its layers' attributes (pickled into checkpoints)."""
+        return type(self.envs[0]._env.unwrapped).__module__.startswith(CHECKPOINTABLE)
 
     def close(self, *, raise_if_closed: bool = True) -> None:
         for env in getattr(self, "envs", ()):
@@ -200,8 +216,9 @@ def _layers(env) -> list:
 
 
 def _attributes(layer) -> dict:
-    """A layer's own state: its attributes without the link to the layer inside."""
-    return {k: v for k, v in vars(layer).items() if k != "env"}
+    """A layer's own state: its attributes, without a wrapper's link to the layer inside."""
+    inner = isinstance(layer, gymnasium.Wrapper)
+    return {k: v for k, v in vars(layer).items() if not (inner and k == "env")}
 
 
 @functools.cache

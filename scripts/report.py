@@ -9,8 +9,10 @@ environment steps (each seed's mean over its last ``--window`` episodes, as it s
 at that step; median and IQR over seeds), and ``compare.md`` holds one table:
 
 - steps to threshold: the environment steps a seed had taken when the mean of its
-  last ``--window`` episodes first met the env's threshold (``THRESHOLDS``);
-  median over seeds, counting a seed that never met it as "never", and how many met it;
+  last few episodes (the window in ``THRESHOLDS``: 10, or 1 for MountainCar's flag)
+  first met the env's threshold, within the budget; median over seeds, counting a
+  seed that never met it as "never" (so the median is "never" unless more than half
+  met it), and how many met it;
 - at budget: the mean of each seed's last ``--window`` episodes that ended within the
   budget (``--budget``, default: the fewest steps any seed of that env ran), median
   and IQR over seeds.
@@ -68,19 +70,22 @@ def rolling(df: pd.DataFrame, column: str, window: int, full: bool = False) -> p
         lambda v: v.rolling(window, min_periods=window if full else 1).mean())
 
 
-def steps_to_threshold(df: pd.DataFrame, env: str, window=None) -> pd.Series:
-    """Per seed: env steps when the windowed mean first met the env's threshold (NaN: never)."""
-    column, op, value, default_window, _ = THRESHOLDS[env]
-    mean = rolling(df, column, window or default_window, full=True)
-    met = mean <= value if op == "<=" else mean >= value
+def steps_to_threshold(df: pd.DataFrame, env: str, budget=None) -> pd.Series:
+    """Per seed: env steps when the mean over the env's window of episodes first met its
+    threshold, within ``budget`` if given (NaN: never)."""
+    column, op, value, window, _ = THRESHOLDS[env]
+    mean = rolling(df, column, window, full=True)
+    met = (mean <= value if op == "<=" else mean >= value) & (df["env_steps"] <= (budget or np.inf))
     first = df[met].groupby("seed")["env_steps"].first()
     return first.reindex(sorted(df["seed"].unique()))
 
 
 def at_budget(df: pd.DataFrame, column: str, budget: int, window: int) -> pd.Series:
-    """Per seed: mean of ``column`` over its last ``window`` episodes that ended within ``budget``."""
+    """Per seed: mean of ``column`` over its last ``window`` episodes that ended within ``budget``
+    (NaN for a seed none of whose episodes did)."""
     within = df[df["env_steps"] <= budget]
-    return within.groupby("seed")[column].apply(lambda v: v.iloc[-window:].mean())
+    means = within.groupby("seed")[column].apply(lambda v: v.iloc[-window:].mean())
+    return means.reindex(sorted(df["seed"].unique()))
 
 
 def curve(df: pd.DataFrame, column: str, window: int, grid: np.ndarray) -> np.ndarray:
@@ -110,7 +115,10 @@ def fmt_steps(steps: pd.Series) -> str:
 
 
 def fmt_band(v: pd.Series) -> str:
-    return f"{v.median():.4g} [{v.quantile(0.25):.4g}, {v.quantile(0.75):.4g}]"
+    missing = int(v.isna().sum())
+    v = v.dropna()
+    text = f"{v.median():.4g} [{v.quantile(0.25):.4g}, {v.quantile(0.75):.4g}]" if len(v) else "–"
+    return text + (f" ({missing} seeds: no episode within the budget)" if missing else "")
 
 
 def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
@@ -137,7 +145,7 @@ def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
         fig, ax = plt.subplots(figsize=(6.8, 4.2))
         grid = np.linspace(0, b, 200)[1:]
         for label, df, cfg in entries:
-            to = fmt_steps(steps_to_threshold(df[df.env_steps <= b], env)) if threshold else "–"
+            to = fmt_steps(steps_to_threshold(df, env, b)) if threshold else "–"
             fits = (f"{df.groupby('seed')['kernel_fits'].last().mean():.1f}" if "kernel_fits" in df else "–")
             ms = df["wall_s"].sum() / df["steps"].sum() * 1e3
             lines.append(f"| {label} | {df.seed.nunique()} | {to} | {fmt_band(at_budget(df, column, b, window))} "

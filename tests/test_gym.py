@@ -134,7 +134,7 @@ def test_state_round_trip_mid_episode():
 
 @pytest.mark.parametrize("name, message", [
     ("gym:Pendulum-v1", "gym:Pendulum-v1 has Box actions; the suite's agents (DGPQ, DQN) need discrete ones"),
-    ("gym:NoSuchEnv-v0", "unknown gymnasium id"),
+    ("gym:NoSuchEnv-v0", "unknown gymnasium id gym:NoSuchEnv-v0"),
     ("gym:", "unknown env 'gym:'"),
 ])
 def test_unusable_ids_are_refused_in_one_line(name, message):
@@ -151,3 +151,37 @@ def test_any_discrete_id_runs_with_defaults():
     cfg = resolve_config(env="gym:CartPole-v0", agent="random", seeds=[0], episodes=2)
     assert cfg["run"]["preset"] == "default"
     assert len(run_experiment(cfg, progress=False)) == 2
+
+
+def test_budget_ends_a_seed_with_the_episode_that_reaches_it():
+    """30-step episodes (a random walk does not reach the square's goal, 17 moves away, in 30): a budget
+    of 60 is met exactly by the 2nd episode, 61 needs a 3rd."""
+    for budget, episodes in ((60, 2), (61, 3)):
+        df = run_experiment(resolve_config(agent="random", seeds=[0, 1], episodes=10, max_steps=30,
+                                           env_steps=budget), progress=False)
+        assert (df.steps == 30).all() and (df.groupby("seed").size() == episodes).all()
+
+
+def test_an_envs_own_cap_ends_the_episode_and_odd_envs_do_not_resume():
+    """The block-push id caps its episodes at 50 itself: with max_steps 60 our episode ends there
+    (truncated), and the next step starts a new one. Its state is pybullet's, not Python's: it runs
+    and saves, but a checkpoint is refused on loading, in one line."""
+    env = env_class("gym:trl_dgpq/BlockPush-v0")([0], max_steps=60)
+    td = env.reset()
+    for t in range(51):
+        td["action"] = torch.tensor([1])  # south, away from the goal: no success, no fall
+        out, td = env.step_and_maybe_reset(td)
+        if t == 49:
+            assert out["next", "truncated"].item() and not out["next", "terminated"].item()
+    assert not out["next", "done"].item() and env.t.item() == 1
+    with pytest.raises(ValueError, match="cannot continue from a checkpoint"):
+        env.load_state_dict(env.state_dict())
+    env.close()
+
+
+def test_bounds_settings_are_checked():
+    car = env_class("gym:MountainCar-v0")
+    with pytest.raises(ValueError, match="one bound per dimension"):
+        car([0], obs_low=(-1.0, -1.0), obs_high=(1.0,))
+    with pytest.raises(ValueError, match="finite obs_low < obs_high"):
+        car([0], obs_low=(1.0, -1.0), obs_high=(0.0, 1.0))

@@ -27,16 +27,18 @@ def fake_run(folder, env, seeds_steps, returns=None, terminated=None, env_cfg=No
 
 def test_steps_to_threshold_and_budget_by_hand(tmp_path):
     """CartPole, window 10: 10 episodes of 100, then of 300: the mean of the last 10 first reaches
-    195 after 5 of 300 (200), at 10 x 100 + 5 x 300 = 2,500 steps. At a budget of 2,000 the last
+    195 after 5 of 300 (200), at 10 x 100 + 5 x 300 = 2,500 steps. At a budget of 1,900 the last
     10 episodes within it are 7 x 100 + 3 x 300: mean 160."""
     steps = [100] * 10 + [300] * 10
-    run = fake_run(tmp_path / "a", "gym:CartPole-v1", {0: steps, 1: [20] * 100})
+    # seed 2 starts high: only a full window counts, first met at episode 10 (5 x 300 + 5 x 100 = 2,000)
+    run = fake_run(tmp_path / "a", "gym:CartPole-v1", {0: steps, 1: [20] * 100, 2: [300] * 5 + [100] * 20})
     df, _ = report.load_run(run)
     to = report.steps_to_threshold(df, "gym:CartPole-v1")
-    assert to[0] == 2500 and pd.isna(to[1])
-    assert report.at_budget(df, "return", 2000, 10)[0] == pytest.approx(160)
-    assert report.fmt_steps(to) == "never (1/2 seeds met it)"
-    assert report.fmt_steps(pd.Series([2500.0, 1000.0, float("nan")])) == "2,500 (2/3 seeds met it)"
+    assert to[0] == 2500 and pd.isna(to[1]) and to[2] == 2000
+    # budget 1,900 = the end of episode 13 exactly: it counts
+    assert report.at_budget(df, "return", 1900, 10)[0] == pytest.approx(160)
+    assert report.fmt_steps(to) == "2,500 (2/3 seeds met it)"
+    assert report.fmt_steps(to[[0, 1]]) == "never (1/2 seeds met it)"
 
 
 def test_mountaincar_flag_and_groups(tmp_path):
@@ -63,3 +65,11 @@ def test_mountaincar_flag_and_groups(tmp_path):
 def test_bad_input_is_one_line(tmp_path, capsys):
     assert report.main([str(tmp_path)]) == 2
     assert "not a finished run" in capsys.readouterr().err
+
+
+def test_a_seed_with_nothing_within_the_budget_still_counts(tmp_path):
+    run = fake_run(tmp_path / "a", "gym:CartPole-v1", {0: [300] * 12, 1: [600] * 12, 2: [300] * 12})
+    df, _ = report.load_run(run)
+    to = report.steps_to_threshold(df, "gym:CartPole-v1", budget=3000)
+    assert to.tolist()[0] == 3000 and to.isna().tolist() == [False, True, False]
+    assert report.fmt_band(report.at_budget(df, "return", 500, 10)) == "300 [300, 300] (1 seeds: no episode within the budget)"

@@ -40,7 +40,7 @@ class DQNConfig:
     lr: float = setting(6.3e-4, "Adam learning rate")
     buffer_size: int = setting(50_000, "replay buffer capacity (transitions per seed)")
     batch_size: int = setting(128, "minibatch size")
-    learning_starts: int = setting(0, "env steps stored before the first update (at least batch_size)")
+    learning_starts: int = setting(0, "env steps before the first update (and at least a minibatch stored)")
     train_freq: int = setting(4, "update every this many env steps")
     gradient_steps: int = setting(4, "updates each time")
     target_update_interval: int = setting(250, "env steps between copies of the online network to the target")
@@ -101,7 +101,8 @@ class Learner(TorchLearner):
             self.buffer.extend(transition)
             self.steps += 1
             self.explore.step()
-            ready = len(self.buffer) >= max(cfg.learning_starts, cfg.batch_size)
+            # from learning_starts on, once a minibatch is stored (SB3 samples with replacement before)
+            ready = self.steps >= cfg.learning_starts and len(self.buffer) >= cfg.batch_size
             if ready and self.steps % cfg.train_freq == 0:
                 for _ in range(cfg.gradient_steps):
                     loss = self.loss(self.buffer.sample())["loss"]
