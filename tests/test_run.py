@@ -218,3 +218,11 @@ def test_a_negative_comma_list_is_a_flag_value(tmp_path):
     assert run("--env", "push", "--agent", "oracle", "--seeds", 1, "--episodes", 1, "--max-steps", 3,
                "--block-start", "-0.3,0.2", "--out", tmp_path / "p") == 0
     assert json.loads((tmp_path / "p" / "config.json").read_text())["env"]["block_start"] == [-0.3, 0.2]
+
+
+def test_a_config_recorded_before_a_setting_existed_still_runs(tmp_path):
+    """config.json files from before env_steps existed lack it: the default (no budget) applies."""
+    config = resolve_config(seeds=[0], episodes=2)
+    del config["run"]["env_steps"]
+    folder = RunFolder.create(str(tmp_path / "old"), "x")
+    assert len(runner.start(config, folder, progress=False)) == 2
