@@ -14,8 +14,8 @@ at that step; median and IQR over seeds), and ``compare.md`` holds one table:
   seed that never met it as "never" (so the median is "never" unless more than half
   met it), and how many met it;
 - at budget: the mean of each seed's last ``--window`` episodes that ended within the
-  budget (``--budget``, default: the fewest steps any seed of that env ran), median
-  and IQR over seeds.
+  budget (``--budget``, default: the runs' common ``env_steps``, else the fewest steps
+  any of their seeds ran), median and IQR over seeds.
 """
 from __future__ import annotations
 
@@ -101,6 +101,14 @@ def curve(df: pd.DataFrame, column: str, window: int, grid: np.ndarray) -> np.nd
     return np.array(rows)
 
 
+def default_budget(entries) -> int:
+    """The runs' common ``env_steps`` budget, else the fewest steps any of their seeds ran."""
+    budgets = {cfg["run"].get("env_steps", 0) for _, _, cfg in entries}
+    if len(budgets) == 1 and budgets != {0}:
+        return budgets.pop()
+    return int(min(df.groupby("seed")["env_steps"].max().min() for _, df, _ in entries))
+
+
 def group_name(env: str, settings: dict, others: list) -> str:
     """The env's name, plus the settings where this group differs from the env's other groups."""
     differ = sorted(k for k in settings if any(o.get(k) != settings[k] for o in others))
@@ -133,7 +141,7 @@ def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
     for (env, _), entries in groups.items():
         name = group_name(env, entries[0][2]["env"], [json.loads(k[1]) for k in groups if k[0] == env])
         column, ylabel = measure(env)
-        b = budget or int(min(df.groupby("seed")["env_steps"].max().min() for _, df, _ in entries))
+        b = budget or default_budget(entries)
         threshold = THRESHOLDS.get(env)
         lines += [f"## {name}", "",
                   f"Budget: {b:,} environment steps per seed. Threshold: "
@@ -146,7 +154,8 @@ def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
         grid = np.linspace(0, b, 200)[1:]
         for label, df, cfg in entries:
             to = fmt_steps(steps_to_threshold(df, env, b)) if threshold else "–"
-            fits = (f"{df.groupby('seed')['kernel_fits'].last().mean():.1f}" if "kernel_fits" in df else "–")
+            fits = (f"{df.groupby('seed')['kernel_fits'].last().mean():.1f}" if "kernel_fits" in df
+                    else "0" if cfg["run"]["agent"] == "dgpq" else "–")  # DGPQ with RBF trains no kernel
             ms = df["wall_s"].sum() / df["steps"].sum() * 1e3
             lines.append(f"| {label} | {df.seed.nunique()} | {to} | {fmt_band(at_budget(df, column, b, window))} "
                          f"| {fits} | {ms:.2f} |")

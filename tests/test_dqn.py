@@ -36,6 +36,18 @@ def test_updates_start_and_repeat_on_schedule():
     assert counts == expect and counts[-1] == 6
 
 
+def test_no_update_before_a_minibatch_is_stored():
+    """learning_starts 0, batch 4, every step: the first update is at step 4 (not from one stored
+    transition sampled four times)."""
+    cfg = DQNConfig(hidden=(8,), batch_size=4, buffer_size=50, learning_starts=0, train_freq=1, gradient_steps=1)
+    learner = Learner(cfg, 3, 2, 0)
+    counts = []
+    for _ in range(8):
+        learner.learn(transition())
+        counts.append(learner.updates)
+    assert counts == [0, 0, 0, 1, 2, 3, 4, 5]
+
+
 def test_epsilon_falls_linearly_then_stays():
     cfg = DQNConfig(hidden=(8,), batch_size=4, buffer_size=50, learning_starts=1000, eps_init=1.0, eps_end=0.2,
                     exploration_steps=8)
