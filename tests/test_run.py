@@ -99,7 +99,7 @@ def test_default_run_folders_are_unique(tmp_path):
     (["--kernel-hidden", "10,x"], "kernel_hidden"),
     (["--preset", "nope"], "unknown preset 'nope'"),
     (["--agent", "nope"], "agent must be one of"),
-    (["--env", "nope"], "env must be one of"),
+    (["--env", "nope"], "unknown env 'nope'"),
     (["--seeds", "5-2"], "seeds"),
     (["--max-steps", "0"], "max_steps"),
     (["--agent", "random", "--budget", "5"], "unknown setting 'budget'"),
