@@ -16,6 +16,16 @@ def transition(obs_dim=3, n=1, terminated=False):
                                 "done": flag, "terminated": flag.clone()}}, batch_size=[n])
 
 
+def trace(cfg, steps, read):
+    """``read(learner)`` after each of ``steps`` transitions given to a fresh learner."""
+    learner = Learner(cfg, 3, 2, 0)
+    out = []
+    for _ in range(steps):
+        learner.learn(transition())
+        out.append(read(learner))
+    return out
+
+
 def target_equals_online(learner):
     online = learner.loss.value_network_params.flatten_keys()
     target = learner.loss.target_value_network_params.flatten_keys()
@@ -27,11 +37,7 @@ def test_updates_start_and_repeat_on_schedule():
     (multiples of 3 once 10 transitions are stored), two each."""
     cfg = DQNConfig(hidden=(8,), batch_size=4, buffer_size=50, learning_starts=10, train_freq=3, gradient_steps=2,
                     target_update_interval=1000)
-    learner = Learner(cfg, 3, 2, 0)
-    counts = []
-    for _ in range(20):
-        learner.learn(transition())
-        counts.append(learner.updates)
+    counts = trace(cfg, 20, lambda learner: learner.updates)
     expect = [2 * sum(1 for k in range(1, n + 1) if k % 3 == 0 and k >= 10) for n in range(1, 21)]
     assert counts == expect and counts[-1] == 6
 
@@ -40,33 +46,20 @@ def test_no_update_before_a_minibatch_is_stored():
     """learning_starts 0, batch 4, every step: the first update is at step 4 (not from one stored
     transition sampled four times)."""
     cfg = DQNConfig(hidden=(8,), batch_size=4, buffer_size=50, learning_starts=0, train_freq=1, gradient_steps=1)
-    learner = Learner(cfg, 3, 2, 0)
-    counts = []
-    for _ in range(8):
-        learner.learn(transition())
-        counts.append(learner.updates)
-    assert counts == [0, 0, 0, 1, 2, 3, 4, 5]
+    assert trace(cfg, 8, lambda learner: learner.updates) == [0, 0, 0, 1, 2, 3, 4, 5]
 
 
 def test_epsilon_falls_linearly_then_stays():
     cfg = DQNConfig(hidden=(8,), batch_size=4, buffer_size=50, learning_starts=1000, eps_init=1.0, eps_end=0.2,
                     exploration_steps=8)
-    learner = Learner(cfg, 3, 2, 0)
-    eps = []
-    for _ in range(12):
-        learner.learn(transition())
-        eps.append(round(float(learner.explore.eps), 6))
+    eps = trace(cfg, 12, lambda learner: round(float(learner.explore.eps), 6))
     assert eps == [0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.2, 0.2, 0.2, 0.2]
 
 
 def test_target_network_copies_every_interval_steps():
     cfg = DQNConfig(hidden=(8,), batch_size=2, buffer_size=50, learning_starts=2, train_freq=1, gradient_steps=1,
                     target_update_interval=4, lr=0.05)
-    learner = Learner(cfg, 3, 2, 0)
-    equal = []
-    for _ in range(12):
-        learner.learn(transition())
-        equal.append(target_equals_online(learner))
+    equal = trace(cfg, 12, target_equals_online)
     # equal from the start until the first update (step 2); copied at env steps 4, 8, 12 (after that
     # step's update); learning changes the online net in between
     assert [i + 1 for i, e in enumerate(equal) if e] == [1, 4, 8, 12]
