@@ -29,6 +29,7 @@ import torch
 from tensordict import TensorDict
 from tqdm.auto import tqdm
 
+
 class NonFiniteError(FloatingPointError):
     """The env produced NaN or inf."""
 

@@ -126,6 +126,9 @@ class GymSeedEnv(SeedBatchedEnv):
         self.n_actions = n
         self.low, self.high = torch.tensor(low), torch.tensor(high)
         self.squash = ~(torch.isfinite(self.low) & torch.isfinite(self.high))
+        # x -> (x - offset) / span on bounded dimensions, fixed for the env's life
+        self.offset = torch.where(self.squash, 0.0, self.low)
+        self.span = torch.where(self.squash, 1.0, self.high - self.low)
         super().__init__(seeds, cfg, device)
         self.envs = []
         try:
@@ -136,7 +139,7 @@ class GymSeedEnv(SeedBatchedEnv):
             self.close(raise_if_closed=False)
             raise
         self.started = torch.zeros(self.num_seeds, dtype=torch.bool)
-        self.obs = torch.zeros(self.num_seeds, len(low), dtype=torch.float64, device=self.device)
+        self.raw = torch.zeros(self.num_seeds, len(low), dtype=torch.float64)  # gymnasium's observations
 
     def _make_specs(self) -> None:
         S, d = self.num_seeds, self.low.numel()
@@ -149,17 +152,16 @@ class GymSeedEnv(SeedBatchedEnv):
     def to_unit_box(self, raw: torch.Tensor) -> torch.Tensor:
         """Raw gymnasium observations (..., d) -> [0, 1]^d."""
         raw = raw.to(torch.float64)
-        span = torch.where(self.squash, 1.0, self.high - self.low)
-        affine = (raw - torch.where(self.squash, 0.0, self.low)) / span
+        affine = (raw - self.offset) / self.span
         return torch.where(self.squash, 0.5 * (1 + torch.tanh(raw)), affine).clamp(0.0, 1.0)
 
     def _initial(self, mask):
         for i in mask.nonzero()[:, 0].tolist():
             # the first reset seeds this instance's np_random; later ones continue it
             kwargs = {} if self.started[i] else {"seed": self.seeds[i]}
-            self.obs[i] = self.to_unit_box(self.envs[i].reset(**kwargs).get("observation"))
+            self.raw[i] = self.envs[i].reset(**kwargs).get("observation")
             self.started[i] = True
-        return self._td(observation=self.obs.clone())
+        return self._td(observation=self.to_unit_box(self.raw).to(self.device))
 
     def _transition(self, action):
         S = self.num_seeds
@@ -170,18 +172,18 @@ class GymSeedEnv(SeedBatchedEnv):
             # GymEnv._step: our step already checked the action; EnvBase.step's checks
             # would cost as much again as gymnasium's physics
             out = env._step(TensorDict({"action": torch.tensor(a)}, []))
-            self.obs[i] = self.to_unit_box(out.get("observation"))
+            self.raw[i] = out.get("observation")
             reward[i] = out.get("reward").item()
             terminated[i] = out.get("terminated").item()
             truncated[i] = out.get("truncated").item()
-        return self._td(observation=self.obs.clone()), reward, terminated, truncated
+        return self._td(observation=self.to_unit_box(self.raw).to(self.device)), reward, terminated, truncated
 
     # ------------------------------------------------------------- state
     def state_dict(self, *args, **kwargs) -> dict:
         gym = None
         if self.checkpointable:
             gym = [pickle.dumps([_attributes(layer) for layer in _layers(env._env)]) for env in self.envs]
-        return {**super().state_dict(), "started": self.started.clone(), "obs": self.obs.clone(), "gym": gym}
+        return {**super().state_dict(), "started": self.started.clone(), "raw": self.raw.clone(), "gym": gym}
 
     def load_state_dict(self, state: dict, strict: bool = True) -> None:
         if state["gym"] is None:
@@ -190,7 +192,7 @@ class GymSeedEnv(SeedBatchedEnv):
                              f"state in Python attributes; start the run again")
         super().load_state_dict(state, strict)
         self.started.copy_(state["started"])
-        self.obs.copy_(state["obs"])
+        self.raw.copy_(state["raw"])
         for env, data in zip(self.envs, state["gym"]):
             for layer, saved in zip(_layers(env._env), pickle.loads(data)):
                 vars(layer).update(saved)

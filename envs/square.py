@@ -21,7 +21,6 @@ import torch
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
 from trl_dgpq.config import setting
-
 from trl_dgpq.rng import REWARD_NOISE_STREAM
 
 from .base import SeedBatchedEnv

@@ -130,8 +130,10 @@ def fmt_band(v: pd.Series) -> str:
 
 
 def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
-    """Figures and the markdown table; returns (written paths, markdown text)."""
+    """Figures and the markdown table; returns (written paths, markdown text). ``labels``:
+    one per run, or None for each run's agent and preset."""
     loaded = [load_run(r) for r in runs]
+    labels = labels or [f"{cfg['run']['agent']} {cfg['run']['preset']}" for _, cfg in loaded]
     groups = {}  # runs on the same env with the same env settings
     for (df, cfg), label in zip(loaded, labels):
         key = (cfg["run"]["env"], json.dumps(cfg["env"], sort_keys=True))
@@ -197,8 +199,7 @@ def main(argv=None) -> int:
             raise ValueError(f"{len(args.runs)} runs need {len(args.runs)} labels, got {len(args.labels)}")
         if args.window < 1 or (args.budget is not None and args.budget < 1):
             raise ValueError("--window and --budget must be positive")
-        labels = args.labels or [f"{c['run']['agent']} {c['run']['preset']}" for _, c in map(load_run, args.runs)]
-        written, text = report(args.runs, labels, Path(args.out or args.runs[0]), args.budget, args.window)
+        written, text = report(args.runs, args.labels, Path(args.out or args.runs[0]), args.budget, args.window)
     except ValueError as err:
         print(f"report.py: error: {err}", file=sys.stderr)
         return 2

@@ -26,7 +26,7 @@ def test_specs_hold_through_our_wrapper(name):
     env.close()
 
 
-def raw_trajectory(gym_id, seed, actions, episodes_reset=True):
+def raw_trajectory(gym_id, seed, actions):
     """Plain gymnasium: observations, rewards and terminations for the action list."""
     env = gymnasium.make(gym_id)
     obs, _ = env.reset(seed=seed)

@@ -87,7 +87,8 @@ class Learner(TorchLearner):
         self.explore = EGreedyModule(spec, eps_init=float(cfg.eps_init), eps_end=float(cfg.eps_end),
                                      annealing_num_steps=cfg.exploration_steps)
         self.policy = TensorDictSequential(self.actor, self.explore)
-        self.optim = torch.optim.Adam(self.loss.value_network_params.values(True, True), lr=cfg.lr)
+        self.params = list(self.loss.value_network_params.values(True, True))  # the online network's
+        self.optim = torch.optim.Adam(self.params, lr=cfg.lr)
         self.buffer = ReplayBuffer(storage=LazyTensorStorage(cfg.buffer_size), batch_size=cfg.batch_size)
         self.cfg, self.steps = cfg, 0
 
@@ -108,7 +109,7 @@ class Learner(TorchLearner):
                     loss = self.loss(self.buffer.sample())["loss"]
                     self.optim.zero_grad()
                     loss.backward()
-                    nn.utils.clip_grad_norm_(self.loss.value_network_params.values(True, True), cfg.max_grad_norm)
+                    nn.utils.clip_grad_norm_(self.params, cfg.max_grad_norm)
                     self.optim.step()
                     self.updates += 1
             self.target.step()  # counts env steps; copies every target_update_interval-th
