@@ -41,7 +41,7 @@ import torch
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
 from trl_dgpq.almgren_chriss import ACModel
-from trl_dgpq.config import setting
+from trl_dgpq.config import require_positive, setting
 from trl_dgpq.rng import PRICE_STREAM, box_muller
 
 from .base import SeedBatchedEnv
@@ -77,13 +77,8 @@ class LiquidationConfig:
         return self.trades
 
     def check(self) -> "LiquidationConfig":
-        def positive(name):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be > 0, got {v}")
-        for name in ("reward_scale", "shares", "start_price", "annual_volatility", "trading_days",
-                     "daily_volume", "horizon", "trades", "spread"):
-            positive(name)
+        require_positive(self, "reward_scale", "shares", "start_price", "annual_volatility", "trading_days",
+                         "daily_volume", "horizon", "trades", "spread")
         for name in ("lam", "level_noise", "level_noise_theta"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):

@@ -41,7 +41,7 @@ from typing import Tuple
 import torch
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
-from trl_dgpq.config import setting
+from trl_dgpq.config import require_positive, setting
 
 from .base import SeedBatchedEnv
 
@@ -101,13 +101,8 @@ class PushConfig:
     push_force: float = setting(50.0, "largest force of the constraint holding the pusher, newtons")
 
     def check(self) -> "PushConfig":
-        def positive(name):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be > 0, got {v}")
-        for name in ("max_steps", "step_size", "goal_radius", "substeps", "time_step", "solver_iterations",
-                     "push_force"):
-            positive(name)
+        require_positive(self, "max_steps", "step_size", "goal_radius", "substeps", "time_step", "solver_iterations",
+                         "push_force")
         if not (isinstance(self.settle_substeps, int) and self.settle_substeps >= 0):
             raise ValueError(f"settle_substeps must be an integer >= 0, got {self.settle_substeps}")
         if not (math.isfinite(self.noise) and 0 <= self.noise < self.step_size):

@@ -18,6 +18,7 @@ with one-line errors.
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 from dataclasses import dataclass, field, fields, is_dataclass
 from typing import Any, Callable, Dict, List, Optional, Tuple
@@ -28,6 +29,15 @@ def setting(default, help: str, *, choices: Optional[Tuple[str, ...]] = None, fl
     """A config field: its default, its help text and optional choices, flag name or parser."""
     meta = dict(help=help, choices=choices, flag=flag, parse=parse)
     return field(default=default, metadata=meta)
+
+
+def require_positive(cfg, *names: str) -> None:
+    """One-line ValueError unless each named setting of ``cfg`` is a finite number > 0
+    (for ``check()`` methods)."""
+    for name in names:
+        v = getattr(cfg, name)
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise ValueError(f"{name} must be > 0, got {v}")
 
 
 def nested(cls):

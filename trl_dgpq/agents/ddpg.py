@@ -13,7 +13,6 @@ both target networks.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Sequence, Tuple
 
@@ -25,7 +24,7 @@ from torchrl.data import Bounded, LazyTensorStorage, ReplayBuffer
 from torchrl.modules import MLP, OrnsteinUhlenbeckProcessModule, TanhModule, ValueOperator
 from torchrl.objectives import DDPGLoss, SoftUpdate
 
-from ..config import setting
+from ..config import require_positive, setting
 from ..envs.base import observation_dim
 from .neural import PerSeedLearners, TorchLearner
 
@@ -52,10 +51,7 @@ class DDPGConfig:
             raise ValueError(f"actor_hidden must be positive widths, got {list(self.actor_hidden)}")
         if len(self.critic_hidden) != 2 or min(self.critic_hidden) < 1:
             raise ValueError(f"critic_hidden must be two positive widths, got {list(self.critic_hidden)}")
-        for name in ("actor_lr", "critic_lr", "target_update", "ou_dt"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be > 0, got {v}")
+        require_positive(self, "actor_lr", "critic_lr", "target_update", "ou_dt")
         if self.target_update > 1:
             raise ValueError(f"target_update must be in (0, 1], got {self.target_update}")
         if self.buffer_size < self.batch_size or self.batch_size < 1:

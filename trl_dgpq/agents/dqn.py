@@ -15,7 +15,6 @@ action spec is required (liquidation: ``action_levels`` > 0).
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Sequence, Tuple
 
@@ -27,7 +26,7 @@ from torchrl.data import Categorical, LazyTensorStorage, ReplayBuffer
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate
 
-from ..config import setting
+from ..config import require_positive, setting
 from ..envs.base import discrete_actions, observation_dim
 from .neural import PerSeedLearners, TorchLearner
 
@@ -54,10 +53,7 @@ class DQNConfig:
             raise ValueError(f"gamma must be in [0, 1], got {self.gamma}")
         if not self.hidden or min(self.hidden) < 1:
             raise ValueError(f"hidden must be positive widths, got {list(self.hidden)}")
-        for name in ("lr", "max_grad_norm"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be > 0, got {v}")
+        require_positive(self, "lr", "max_grad_norm")
         if self.batch_size < 1 or self.buffer_size < self.batch_size:
             raise ValueError(f"need 1 <= batch_size <= buffer_size, got {self.batch_size} and {self.buffer_size}")
         for name in ("train_freq", "gradient_steps", "target_update_interval", "exploration_steps"):
