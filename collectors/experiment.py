@@ -5,27 +5,37 @@
 
     {"run": RunConfig fields, "env": the env's Config fields, "agent": the agent's Config fields}
 
-Defaults come from the dataclasses only; presets (``trl_dgpq/presets.py``) and
-overrides are applied on top. ``build`` makes the env and agent for a config and a
-seed list, so a batch of seeds can be shipped to another process as (config, seeds).
+Defaults come from the dataclasses only; presets (each domain's ``presets.py``) and
+overrides are applied on top. What the agent needs to know of the env is one
+``EnvInfo`` made from the env's class and config (no env is built for it).
+``build`` makes the env and agent for a config and a seed list, so a batch of seeds
+can be shipped to another process as (config, seeds).
 """
 from __future__ import annotations
 
+import logging
 import re
 from dataclasses import dataclass
 from typing import Any, Dict, List, Optional, Tuple
 
 import pandas as pd
 
-from trl_dgpq.agents import AGENTS, make_agent
+from trl_dgpq.agents import agent_class, agent_names, check_agent_name
 from trl_dgpq.config import find_leaf, from_dict, leaves, setting, to_dict, with_overrides
-from trl_dgpq.envs import ENVS, check_env_name, env_class, env_configs, make_env
-from trl_dgpq.presets import PRESETS, preset_overrides
+from trl_dgpq.envs import check_env_name, domains, env_class, env_configs, make_env
+from trl_dgpq.presets import preset_overrides, preset_table
 
 from .online import OnlineCollector
 
 TIMING_COLUMNS = ("wall_s", "cpu_s", "us_per_step")
 SECTIONS = ("run", "env", "agent")
+
+
+def quiet_torchrl() -> None:
+    """TorchRL logs one INFO line per replay buffer; commands show warnings only. (Its
+    logger's level is set when torchrl is imported, so import it first.)"""
+    import torchrl  # noqa: F401
+    logging.getLogger("torchrl").setLevel(logging.WARNING)
 
 
 def parse_seeds(text) -> List[int]:
@@ -57,10 +67,10 @@ def parse_seeds(text) -> List[int]:
 @dataclass
 class RunConfig:
     """What to run."""
-    env: str = setting("square", f"environment: {', '.join(ENVS)} or gym:ID (a gymnasium id with discrete "
-                                  "actions, e.g. gym:CartPole-v1)", parse=check_env_name)
-    agent: str = setting("dgpq", "agent", choices=tuple(AGENTS))
-    preset: Optional[str] = setting(None, "named settings of (env, agent) in trl_dgpq/presets.py "
+    env: str = setting("square", f"environment: {', '.join(e for d in domains() for e in d.examples())} "
+                                  "(gym:ID: any gymnasium id with discrete actions)", parse=check_env_name)
+    agent: str = setting("dgpq", f"agent: {', '.join(agent_names())}", parse=check_agent_name)
+    preset: Optional[str] = setting(None, "named settings of (env, agent) in the env's domain's presets.py "
                                           "(default: the env's default preset)")
     seeds: Tuple[int, ...] = setting(tuple(range(8)), "count N (seeds 0..N-1), range A-B (inclusive) or "
                                                       "list a,b,c; all run in one batch",
@@ -82,7 +92,7 @@ class RunConfig:
 
 def classes(run: dict):
     """(env class, agent class) of a run section."""
-    return env_class(run["env"]), AGENTS[run["agent"]]
+    return env_class(run["env"]), agent_class(run["agent"], run["env"])
 
 
 def split_overrides(settings: Dict[str, Any], env_cls, agent_cls) -> Dict[str, Dict[str, Any]]:
@@ -128,23 +138,22 @@ def resolve_config(settings: Optional[Dict[str, Any]] = None, base: Optional[dic
     run = with_overrides(start, run_settings(settings)).check()
     if base and (run.env, run.agent) != (base["run"]["env"], base["run"]["agent"]):
         raise ValueError("a recorded config keeps its env and agent; start a new run to change them")
-    env_cls, agent_cls = env_class(run.env), AGENTS[run.agent]
+    env_cls, agent_cls = classes(to_dict(run))
     given = split_overrides(settings, env_cls, agent_cls)
     if base:
         env_cfg = from_dict(env_cls.Config, base["env"])
         agent_cfg = from_dict(agent_cls.Config, base["agent"])
     else:
-        if (run.env, run.agent) not in PRESETS:  # say why they do not go together, if the agent knows
-            agent_cls.resolve_config(agent_cls.Config(), env_cls([0], env_cls.Config()))
+        if preset_table(run.env, run.agent) is None:  # say why they do not go together, if the agent knows
+            agent_cls.resolve_config(agent_cls.Config(), env_cls.describe())
         name, preset = preset_overrides(run.env, run.agent, run.preset)
         run = with_overrides(run, {"preset": name})
         env_cfg = with_overrides(env_cls.Config(), preset["env"])
         agent_cfg = with_overrides(agent_cls.Config(), preset["agent"])
     implied = getattr(agent_cls.Config, "implied", lambda given: {})(given["agent"])
-    env_cfg = with_overrides(env_cfg, given["env"]).check()
-    agent_cfg = with_overrides(agent_cfg, {**implied, **given["agent"]})
-    probe = env_cls([0], env_cfg)  # what the agent needs to know of the env: specs, state box
-    agent_cfg = agent_cls.resolve_config(agent_cfg, probe)
+    env_cfg = with_overrides(env_cfg, given["env"])
+    info = env_cls.describe(env_cfg)  # checks the env's settings
+    agent_cfg = agent_cls.resolve_config(with_overrides(agent_cfg, {**implied, **given["agent"]}), info)
     return {"run": to_dict(run), "env": to_dict(env_cfg), "agent": to_dict(agent_cfg)}
 
 
@@ -163,14 +172,14 @@ def build(config: dict, seeds: Optional[List[int]] = None, device="cpu"):
     run, env_cfg, agent_cfg = load_sections(config)
     seeds = list(run.seeds) if seeds is None else list(seeds)
     env = make_env(run.env, env_cfg, seeds, device=device)
-    return env, make_agent(run.agent, agent_cfg, env, seeds)
+    return env, classes(config["run"])[1].make(agent_cfg, env.info, seeds)
 
 
 def memory_estimate(config: dict) -> int:
     """Bytes the agent's state takes at the start, for all seeds."""
     run, env_cfg, agent_cfg = load_sections(config)
     env_cls, agent_cls = classes(config["run"])
-    return int(agent_cls.memory_bytes(agent_cfg, env_cls([0], env_cfg), len(run.seeds)))
+    return int(agent_cls.memory_bytes(agent_cfg, env_cls.describe(env_cfg), len(run.seeds)))
 
 
 def available_memory() -> Optional[int]:
@@ -222,7 +231,7 @@ def cli_owners():
     """{key: [(config class name, leaf), ...]}: every config that has a setting of that name
     (``--reward`` belongs to several envs, with different defaults and choices)."""
     out = {}
-    for cls in [RunConfig] + env_configs() + [a.Config for a in AGENTS.values()]:
+    for cls in [RunConfig] + env_configs() + [agent_class(a).Config for a in agent_names()]:
         for leaf in leaves(cls):
             out.setdefault(leaf.key, []).append((cls.__name__, leaf))
     return out

@@ -31,6 +31,8 @@ from typing import Optional
 import pandas as pd
 import torch
 
+from trl_dgpq.analysis.runs import read_csv_exact
+
 from .experiment import build, check_memory, describe, load_sections
 from .online import OnlineCollector
 
@@ -65,13 +67,6 @@ def atomic_write(path: Path, write) -> None:
     finally:
         if tmp.exists():
             tmp.unlink()
-
-
-def read_csv_exact(path) -> pd.DataFrame:
-    """read_csv that gives back exactly the floats written (pandas >= 3 does by default;
-    older pandas needs the round-trip parser)."""
-    exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
-    return pd.read_csv(path, **exact)
 
 
 def provenance() -> dict:

@@ -38,7 +38,7 @@ import pandas as pd
 from trl_dgpq.config import leaves
 
 from . import runner
-from .experiment import RunConfig, describe, resolve_config
+from .experiment import RunConfig, describe, quiet_torchrl, resolve_config
 
 SWEEP, REPORT = "sweep.json", "report.json"
 EXPERIMENT_KEYS = {"name", "set"} | {leaf.key for leaf in leaves(RunConfig)}
@@ -137,11 +137,9 @@ def _with_seeds(config: dict, seeds: List[int]) -> dict:
 # ------------------------------------------------------------------ one job
 def run_job(config: dict, folder: str) -> None:
     """Run (or continue) one job in this process, torch at one thread (see the module doc)."""
-    import logging
-
     import torch
     torch.set_num_threads(1)
-    logging.getLogger("torchrl").setLevel(logging.WARNING)  # one INFO line per replay buffer otherwise
+    quiet_torchrl()
     path = runner.RunFolder(folder)
     if path.file(runner.CONFIG).is_file():
         if path.finished():

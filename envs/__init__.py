@@ -1,47 +1,68 @@
-"""TorchRL environments, batched over seeds (``batch_size=[S]``); installed as
-``trl_dgpq.envs``. A new env: one file with its class and ``Config`` dataclass,
-one line in ``ENVS``, one entry in ``trl_dgpq/presets.py``. Any gymnasium id with
-discrete actions is an env too, named ``gym:ID`` (``envs/gym.py``)."""
-from .base import SeedBatchedEnv
-from .gym import PREFIX as GYM_PREFIX
-from .gym import GymConfig, GymSeedEnv, gym_env
-from .liquidation import LiquidationConfig, LiquidationEnv
-from .push import PushConfig, PushEnv
-from .push_gym import register as _register_gym
-from .square import SquareConfig, SquareEnv
+"""The domains, batched over seeds (``batch_size=[S]``); installed as ``trl_dgpq.envs``.
 
-ENVS = {"square": SquareEnv, "liquidation": LiquidationEnv, "push": PushEnv}
-GYM_ENVS = ("gym:CartPole-v1", "gym:MountainCar-v0", "gym:Acrobot-v1")  # with presets and documented bounds
-_register_gym()  # gymnasium id "trl_dgpq/BlockPush-v0"
+A domain is one folder under ``envs/`` (``envs/domain.py`` says what goes in it) and
+one line in ``DOMAINS`` below; nothing is imported until a domain is used. An env
+name is a domain's name, or ``<domain>:<id>`` for a family (``gym:CartPole-v1``: any
+gymnasium id with discrete actions).
+"""
+from __future__ import annotations
+
+import importlib
+from typing import Optional, Tuple
+
+from .domain import Domain
+
+DOMAINS = {
+    "square": "trl_dgpq.envs.square",
+    "liquidation": "trl_dgpq.envs.liquidation",
+    "push": "trl_dgpq.envs.push",
+    "gym": "trl_dgpq.envs.gym",
+}
+
+
+def split_name(name) -> Tuple[str, Optional[str]]:
+    """"gym:CartPole-v1" -> ("gym", "CartPole-v1"); "square" -> ("square", None)."""
+    if not isinstance(name, str):
+        raise ValueError(f"env must be text, got {name!r}")
+    head, sep, env_id = name.partition(":")
+    return head, (env_id if sep else None)
+
+
+def domains() -> list:
+    """Every registered ``Domain`` (importing each one's light ``__init__``)."""
+    return [importlib.import_module(path).DOMAIN for path in DOMAINS.values()]
+
+
+def domain(name: str) -> Domain:
+    """The domain of env name ``name``; ValueError (one line) for an unknown one."""
+    head, env_id = split_name(name)
+    if head not in DOMAINS:
+        examples = [e for d in domains() for e in d.examples()]
+        raise ValueError(f"unknown env {name!r}; choose from {', '.join(examples)} (gym:ID: any gymnasium id "
+                         "with discrete actions)")
+    found = importlib.import_module(DOMAINS[head]).DOMAIN
+    found.check_id(env_id)
+    return found
 
 
 def env_class(name: str) -> type:
-    """The env class of a registered name or of ``gym:ID``; ValueError (one line) otherwise."""
-    if name in ENVS:
-        return ENVS[name]
-    if isinstance(name, str) and name.startswith(GYM_PREFIX) and len(name) > len(GYM_PREFIX):
-        return gym_env(name[len(GYM_PREFIX):])
-    raise ValueError(f"unknown env {name!r}; choose from {sorted(ENVS)} or gym:ID (a gymnasium id with "
-                     f"discrete actions, e.g. {', '.join(GYM_ENVS)})")
+    """The env class of ``name`` (refused in one line if the suite cannot run it)."""
+    return domain(name).env_class(split_name(name)[1])
 
 
 def check_env_name(name) -> str:
     """``name`` if it names an env the suite can run (the setting's parser)."""
-    if not isinstance(name, str):
-        raise ValueError(f"env must be text, got {name!r}")
     env_class(name)
     return name
 
 
 def env_configs() -> list:
-    """Every env config class (for the command line's flags)."""
-    return [cls.Config for cls in ENVS.values()] + [GymConfig]
+    """Every domain's env config class (for the command line's flags)."""
+    return [d.config_class() for d in domains()]
 
 
-def make_env(name: str, cfg, seeds, device="cpu") -> SeedBatchedEnv:
+def make_env(name: str, cfg, seeds, device="cpu"):
     return env_class(name)(seeds, cfg, device=device)
 
 
-__all__ = ["ENVS", "GYM_ENVS", "env_class", "check_env_name", "env_configs", "make_env", "SeedBatchedEnv",
-           "SquareEnv", "SquareConfig", "LiquidationEnv", "LiquidationConfig", "PushEnv", "PushConfig",
-           "GymSeedEnv", "GymConfig"]
+__all__ = ["DOMAINS", "Domain", "domain", "domains", "split_name", "env_class", "check_env_name", "env_configs", "make_env"]

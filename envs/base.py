@@ -1,7 +1,9 @@
 """Shared machinery of the seed-batched environments.
 
 A subclass describes one domain: its settings are a config dataclass (``Config``),
-it builds its specs in ``_make_specs`` and implements ``_initial(mask)`` (reset
+it builds its specs in the classmethod ``_specs(cfg, S, device)`` (so what an agent
+needs to know of the env, ``EnvInfo``, comes from the config alone, with no env
+built) and implements ``_initial(mask)`` (reset
 the selected seeds' state, return the observation of all seeds) and
 ``_transition(action)`` (advance every seed, return observation, reward ``(S,)``
 and terminated ``(S,)``, and optionally truncated ``(S,)`` where the env has a cap of
@@ -13,8 +15,8 @@ building TensorDicts on ``self.device``.
 """
 from __future__ import annotations
 
-from dataclasses import replace
-from typing import Sequence, Tuple
+from dataclasses import dataclass, replace
+from typing import Any, Sequence, Tuple
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -24,6 +26,58 @@ from torchrl.envs import EnvBase
 from trl_dgpq.rng import ENV_STREAM, SeedStreams
 
 
+@dataclass(frozen=True)
+class EnvInfo:
+    """What an agent may know of an env, from its class and config alone: the specs of
+    one seed, the names of what each step's TensorDict holds beside the observation,
+    and the names of discrete actions. Resolution, the memory estimate and the run
+    share one (no env is built to learn these)."""
+    config: Any                       # the env's checked Config
+    observation_spec: Composite       # one seed's (shape (1, ...))
+    action_spec: Any
+    action_names: Tuple[str, ...] = ()  # discrete actions' names, by index (empty: unnamed)
+    action_hint: str = ""             # how to get the other kind of action, if the env can
+    device: Any = "cpu"
+
+    @property
+    def observation_dim(self) -> int:
+        return int(self.observation_spec["observation"].shape[-1])
+
+    @property
+    def keys(self) -> Tuple[str, ...]:
+        """Entries of each step's TensorDict beside "observation" (readable by key)."""
+        return tuple(k for k in self.observation_spec.keys() if k != "observation")
+
+    def num_actions(self, who: str = "this agent") -> int:
+        """Number of actions of a discrete (Categorical) action spec; a clear error otherwise."""
+        spec = self.action_spec
+        if not isinstance(spec, Categorical):
+            raise ValueError(f"{who} needs discrete actions; this env's action spec is {type(spec).__name__}"
+                             + (f" ({self.action_hint})" if self.action_hint else ""))
+        return int(spec.space.n)
+
+    def action_box(self, who: str = "this agent") -> Bounded:
+        """The continuous (Bounded) action spec; a clear error otherwise."""
+        spec = self.action_spec
+        if not isinstance(spec, Bounded):
+            raise ValueError(f"{who} needs a continuous (Bounded) action spec; this env's is {type(spec).__name__}"
+                             + (f" ({self.action_hint})" if self.action_hint else ""))
+        return spec
+
+    def action_index(self, name: str) -> int:
+        """Index of the discrete action called ``name``."""
+        if name not in self.action_names:
+            raise ValueError(f"this env has no action {name!r}; its actions are {list(self.action_names)}")
+        return self.action_names.index(name)
+
+    def state_box(self):
+        """(low, high) of the observation, for covering numbers (Section 5)."""
+        spec = self.observation_spec["observation"]
+        if not isinstance(spec, Bounded):
+            raise ValueError("this env has no bounded state space for a covering number")
+        return spec.space.low[0].tolist(), spec.space.high[0].tolist()
+
+
 class SeedBatchedEnv(EnvBase):
     """Base for envs with ``batch_size=[len(seeds)]``; seed i's trajectory depends
     only on seeds[i] and its own actions. ``cfg`` is the subclass's ``Config``
@@ -31,14 +85,15 @@ class SeedBatchedEnv(EnvBase):
 
     batch_locked = True
     Config = None                         # the env's settings dataclass (with a max_steps field)
+    action_names: Tuple[str, ...] = ()    # names of discrete actions, by index
+    action_hint: str = ""                 # how to get the other kind of action, for agents' errors
     _state_names: Tuple[str, ...] = ()    # tensors that change as the env runs
     _streams: Tuple[Tuple[str, int], ...] = ()  # more per-seed streams beside self.rng: (attribute, stream id)
     episode_info: Tuple[str, ...] = ()    # (S,) entries of each step's output holding running episode
                                           # totals; their values at the episode's end go in its CSV row
 
     def __init__(self, seeds: Sequence[int] = (0,), cfg=None, device="cpu", **overrides):
-        cfg = replace(cfg if cfg is not None else self.Config(), **overrides)
-        self.cfg = cfg.check()
+        self.cfg = cfg = self.checked_config(replace(cfg if cfg is not None else self.Config(), **overrides))
         seeds = [int(s) for s in seeds]
         if not seeds or min(seeds) < 0:
             raise ValueError("need at least one seed, each a non-negative integer")
@@ -47,7 +102,8 @@ class SeedBatchedEnv(EnvBase):
         self.max_steps = int(cfg.max_steps)
         self._key_streams()
         self.t = torch.zeros(len(seeds), dtype=torch.long, device=self.device)
-        self._make_specs()
+        specs = self._specs(cfg, len(seeds), self.device)
+        self.observation_spec, self.action_spec, self.reward_spec = specs
         flag = Categorical(2, shape=(len(seeds), 1), dtype=torch.bool, device=self.device)
         self.full_done_spec = Composite(done=flag.clone(), terminated=flag.clone(), truncated=flag.clone(),
                                         shape=self.batch_size, device=self.device)
@@ -56,15 +112,26 @@ class SeedBatchedEnv(EnvBase):
     def num_seeds(self) -> int:
         return len(self.seeds)
 
-    def state_box(self):
-        """(low, high) of the observation, for covering numbers (Section 5)."""
-        spec = self.observation_spec["observation"]
-        if not isinstance(spec, Bounded):
-            raise ValueError(f"{type(self).__name__} has no bounded state space for a covering number")
-        return spec.space.low[0].tolist(), spec.space.high[0].tolist()
+    @classmethod
+    def checked_config(cls, cfg):
+        """``cfg`` checked (and completed, where an env fills a value from elsewhere)."""
+        return cfg.check()
+
+    @classmethod
+    def describe(cls, cfg=None, device="cpu") -> EnvInfo:
+        """The ``EnvInfo`` of this env with settings ``cfg`` (default: the defaults)."""
+        cfg = cls.checked_config(cfg if cfg is not None else cls.Config())
+        observation, action, _ = cls._specs(cfg, 1, device)
+        return EnvInfo(cfg, observation, action, tuple(cls.action_names), cls.action_hint, device)
+
+    @property
+    def info(self) -> EnvInfo:
+        return self.describe(self.cfg, self.device)
 
     # --------------------------------------------------------- subclass API
-    def _make_specs(self) -> None:
+    @classmethod
+    def _specs(cls, cfg, num_seeds: int, device) -> Tuple[Composite, Any, Any]:
+        """(observation spec, action spec, reward spec) for ``num_seeds`` seeds."""
         raise NotImplementedError
 
     def _initial(self, mask: torch.Tensor) -> TensorDict:
@@ -162,14 +229,3 @@ class SeedBatchedEnv(EnvBase):
         for name in self._state_names:
             getattr(self, name).copy_(state[name])
 
-
-def discrete_actions(env, who: str = "this agent") -> int:
-    """Number of actions of a discrete (Categorical) action spec; a clear error otherwise."""
-    spec = env.action_spec
-    if not isinstance(spec, Categorical):
-        raise ValueError(f"{who} needs discrete actions; this env's action spec is {type(spec).__name__}")
-    return int(spec.space.n)
-
-
-def observation_dim(env) -> int:
-    return int(env.observation_spec["observation"].shape[-1])

@@ -1,24 +1,19 @@
 """One source of truth: dataclass defaults -> presets (overrides only) -> flags / --set."""
-import importlib.util
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Optional, Tuple
 
 import pytest
 
-from trl_dgpq.agents import AGENTS
+from trl_dgpq.agents import agent_class, agent_names
 from trl_dgpq.bounds import box_covering, section5
 from trl_dgpq.collectors.experiment import RunConfig, cli_leaves, resolve_config
+from trl_dgpq.commands import train
 from trl_dgpq.config import find_leaf, from_dict, leaves, nested, setting, to_dict, with_overrides
 from trl_dgpq.dgpq import DGPQConfig
-from trl_dgpq.envs import ENVS, env_class, env_configs
-from trl_dgpq.presets import DEFAULT_PRESET, PRESETS
-
-ROOT = Path(__file__).resolve().parent.parent
-spec = importlib.util.spec_from_file_location("train", ROOT / "scripts" / "train.py")
-train = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(train)
+from trl_dgpq.envs import domains, env_class, env_configs
+from trl_dgpq.envs.square.env import SquareEnv
+from trl_dgpq.presets import default_preset
 
 
 def cli_config(*argv):
@@ -33,7 +28,7 @@ def test_no_hand_written_hyperparameter_flags():
     dests = {a.dest for a in parser._actions} - {"help"}
     generated = set(cli_leaves())
     assert dests - generated == set(train.PROCESS_FLAGS)
-    every_leaf = {leaf.key for cls in [RunConfig] + env_configs() + [a.Config for a in AGENTS.values()]
+    every_leaf = {leaf.key for cls in [RunConfig] + env_configs() + [agent_class(a).Config for a in agent_names()]
                   for leaf in leaves(cls)}
     assert every_leaf <= dests
     assert all(leaf.help for leaf in cli_leaves().values())
@@ -71,16 +66,17 @@ def test_flags_and_set_are_the_same_setting():
 def test_defaults_live_in_the_dataclasses():
     cfg = cli_config()
     assert cfg == resolve_config()
-    assert cfg["run"] == {**to_dict(RunConfig()), "preset": DEFAULT_PRESET["square"]}
-    assert cfg["env"] == to_dict(ENVS["square"].Config())
+    assert cfg["run"] == {**to_dict(RunConfig()), "preset": default_preset("square")}
+    assert cfg["env"] == to_dict(SquareEnv.Config())
     assert cfg["agent"] == to_dict(DGPQConfig())   # "shaped" overrides nothing
 
 
-def test_presets_hold_only_overrides_of_known_settings():
-    for (env, agent), table in PRESETS.items():
-        assert DEFAULT_PRESET[env] in table, (env, agent)
+@pytest.mark.parametrize("domain", domains(), ids=lambda d: d.name)
+def test_presets_hold_only_overrides_of_known_settings(domain):
+    for env, agent, table in domain.preset_tables():
+        assert default_preset(env) in table, (env, agent)
         for name, preset in table.items():
-            for section, owner in (("env", env_class(env).Config), ("agent", AGENTS[agent].Config)):
+            for section, owner in (("env", env_class(env).Config), ("agent", agent_class(agent, env).Config)):
                 for key, value in preset.get(section, {}).items():
                     leaf = find_leaf(owner, key)
                     assert leaf is not None, (env, agent, name, key)

@@ -1,4 +1,4 @@
-"""Gymnasium envs through TorchRL's GymEnv, batched over seeds (envs/gym.py)."""
+"""Gymnasium envs through TorchRL's GymEnv, batched over seeds (envs/gym/)."""
 import math
 import subprocess
 import sys
@@ -11,7 +11,10 @@ import torch
 from torchrl.envs.utils import check_env_specs
 
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS, resolve_config, run_experiment
-from trl_dgpq.envs import GYM_ENVS, env_class, make_env
+from trl_dgpq.envs import domain, env_class, make_env
+from trl_dgpq.envs.push.gym_adapter import GYM_ID
+
+GYM_ENVS = domain("gym:CartPole-v1").examples()  # the ids with presets
 
 from test_run import TRAIN
 
@@ -166,7 +169,7 @@ def test_an_envs_own_cap_ends_the_episode_and_odd_envs_do_not_resume():
     """The block-push id caps its episodes at 50 itself: with max_steps 60 our episode ends there
     (truncated), and the next step starts a new one. Its state is pybullet's, not Python's: it runs
     and saves, but a checkpoint is refused on loading, in one line."""
-    env = env_class("gym:trl_dgpq/BlockPush-v0")([0], max_steps=60)
+    env = env_class(f"gym:{GYM_ID}")([0], max_steps=60)
     td = env.reset()
     for t in range(51):
         td["action"] = torch.tensor([1])  # south, away from the goal: no success, no fall

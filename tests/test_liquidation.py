@@ -6,10 +6,10 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
-from trl_dgpq.almgren_chriss import ACModel
+from trl_dgpq.envs.liquidation.almgren_chriss import ACModel
 from trl_dgpq.collectors.experiment import build, resolve_config, run_experiment
 from trl_dgpq.collectors.online import OnlineCollector
-from trl_dgpq.envs import LiquidationConfig, LiquidationEnv
+from trl_dgpq.envs.liquidation.env import LiquidationConfig, LiquidationEnv
 
 D = torch.float64
 # The defaults by hand: sigma^2 = (0.12 / sqrt(250) * 50)^2 = 36 / 250 per day, tau = 1 day,

@@ -14,8 +14,8 @@ from torchrl.envs.utils import check_env_specs
 
 from trl_dgpq.collectors.experiment import build, resolve_config
 from trl_dgpq.collectors.online import OnlineCollector
-from trl_dgpq.envs import PushEnv
-from trl_dgpq.envs.push_gym import ENV_ID
+from trl_dgpq.envs.push.env import PushEnv
+from trl_dgpq.envs.push.gym_adapter import GYM_ID
 
 N, S, E, W = range(4)
 
@@ -238,7 +238,7 @@ def test_dgpq_presets_differ_only_in_the_kernel():
 def test_gymnasium_adapter_is_the_same_env():
     """gym.make's env with reset(seed=3) steps exactly as seed 3 of PushEnv; the checker passes."""
     from gymnasium.utils.env_checker import check_env
-    env = gym.make(ENV_ID, max_steps=12)
+    env = gym.make(GYM_ID, max_steps=12)
     with warnings.catch_warnings():
         warnings.simplefilter("error")      # e.g. "not equal although similar": a reset that is not exact
         check_env(env.unwrapped)
@@ -263,7 +263,7 @@ def test_gymnasium_adapter_is_the_same_env():
 def test_gymnasium_adapter_episode_boundaries_and_streams():
     """Stepping after the episode ended raises until reset(); an unseeded reset goes on with
     the stream (other noise), a seeded one starts it again."""
-    env = gym.make(ENV_ID, max_steps=2).unwrapped
+    env = gym.make(GYM_ID, max_steps=2).unwrapped
     with pytest.raises(RuntimeError):
         env.step(E)
     env.reset(seed=5)
@@ -275,12 +275,12 @@ def test_gymnasium_adapter_episode_boundaries_and_streams():
     env.reset(seed=5)
     assert np.array_equal(env.step(E)[0], first[0])
     with pytest.raises(ValueError, match="render"):
-        gym.make(ENV_ID, render_mode="human")
+        gym.make(GYM_ID, render_mode="human")
     env.close()
 
 
 def test_a_failed_construction_leaves_no_client_connected(monkeypatch):
-    from trl_dgpq.envs import push
+    from trl_dgpq.envs.push import env as push
 
     def connected():
         return sum(pb.isConnected(i) for i in range(512))
@@ -302,15 +302,17 @@ def test_plot_table_counts_successes_in_the_last_episodes(tmp_path):
     """push.md by hand: seed 0 succeeds in episodes 2-3 (10 and 12 steps), seed 1 never; over
     the last 2 episodes: 2 of 4 successes, 11 steps; first success: seed 0 at 2, seed 1
     never, so the median over seeds counts it as never."""
-    from tests.test_run import load_script
+    from trl_dgpq.analysis import load_run
+    from trl_dgpq.envs.push.analysis import table
     run = tmp_path / "r"
     run.mkdir()
     rows = [(0, 1, 50, False), (0, 2, 10, True), (0, 3, 12, True), (1, 1, 50, False), (1, 2, 50, False),
             (1, 3, 49, False)]
     pd.DataFrame([dict(seed=s, episode=e, steps=n, success=w, fell_off=False, wall_s=0.1 * n, distance=0.0)
                   for s, e, n, w in rows]).to_csv(run / "episodes.csv", index=False)
-    plot = load_script("plot")
-    text = plot.push_table([pd.read_csv(run / "episodes.csv")], ["r"], last=2)
+    (run / "config.json").write_text('{"run": {"env": "push", "agent": "oracle", "preset": "shaped"}, "env": {}, '
+                                     '"agent": {}}')
+    text = table([load_run(run)], ["r"], last=2)
     cells = [c.strip() for c in text.splitlines()[2].split("|")]
     assert cells[3:7] == ["50.0%", "11.0", "0.0%", "never (1 never)"]
     assert cells[8] == "100.00"                                # 0.1 s per step

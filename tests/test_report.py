@@ -1,12 +1,15 @@
-"""scripts/report.py: steps to threshold and performance at a budget, by hand."""
+"""scripts/report.py (trl_dgpq.analysis.report): steps to threshold and performance at a budget, by hand."""
 import json
 
 import pandas as pd
 import pytest
 
-from test_run import load_script
+from trl_dgpq.analysis import at_budget, load_run, steps_to_threshold
+from trl_dgpq.analysis.report import fmt_band, fmt_steps, report
+from trl_dgpq.commands.report import main
+from trl_dgpq.envs import domain
 
-report = load_script("report")
+CARTPOLE = domain("gym:CartPole-v1").threshold("CartPole-v1")
 
 
 def fake_run(folder, env, seeds_steps, returns=None, terminated=None, env_cfg=None, agent="dqn"):
@@ -32,13 +35,13 @@ def test_steps_to_threshold_and_budget_by_hand(tmp_path):
     steps = [100] * 10 + [300] * 10
     # seed 2 starts high: only a full window counts, first met at episode 10 (5 x 300 + 5 x 100 = 2,000)
     run = fake_run(tmp_path / "a", "gym:CartPole-v1", {0: steps, 1: [20] * 100, 2: [300] * 5 + [100] * 20})
-    df, _ = report.load_run(run)
-    to = report.steps_to_threshold(df, "gym:CartPole-v1")
+    df = load_run(run).df
+    to = steps_to_threshold(df, CARTPOLE)
     assert to[0] == 2500 and pd.isna(to[1]) and to[2] == 2000
     # budget 1,900 = the end of episode 13 exactly: it counts
-    assert report.at_budget(df, "return", 1900, 10)[0] == pytest.approx(160)
-    assert report.fmt_steps(to) == "2,500 (2/3 seeds met it)"
-    assert report.fmt_steps(to[[0, 1]]) == "never (1/2 seeds met it)"
+    assert at_budget(df, "return", 1900, 10)[0] == pytest.approx(160)
+    assert fmt_steps(to) == "2,500 (2/3 seeds met it)"
+    assert fmt_steps(to[[0, 1]]) == "never (1/2 seeds met it)"
 
 
 def test_mountaincar_flag_and_groups(tmp_path):
@@ -51,7 +54,7 @@ def test_mountaincar_flag_and_groups(tmp_path):
     quiet = fake_run(tmp_path / "quiet", "square", {0: [40] * 30}, env_cfg={"reward_noise": 0.0, "max_steps": 200})
     noisy = fake_run(tmp_path / "noisy", "square", {0: [20] * 30}, env_cfg={"reward_noise": 0.1, "max_steps": 200},
                      agent="dgpq")
-    written, text = report.report([car, quiet, noisy], ["dqn car", "dqn quiet", "dgpq noisy"], tmp_path / "out",
+    written, text = report([car, quiet, noisy], ["dqn car", "dqn quiet", "dgpq noisy"], tmp_path / "out",
                                   budget=600)
     assert "| dqn car | 3 | 550 (2/3 seeds met it) |" in text
     assert "## square (reward_noise=0.0)" in text and "## square (reward_noise=0.1)" in text
@@ -63,13 +66,13 @@ def test_mountaincar_flag_and_groups(tmp_path):
 
 
 def test_bad_input_is_one_line(tmp_path, capsys):
-    assert report.main([str(tmp_path)]) == 2
+    assert main([str(tmp_path)]) == 2
     assert "not a finished run" in capsys.readouterr().err
 
 
 def test_a_seed_with_nothing_within_the_budget_still_counts(tmp_path):
     run = fake_run(tmp_path / "a", "gym:CartPole-v1", {0: [300] * 12, 1: [600] * 12, 2: [300] * 12})
-    df, _ = report.load_run(run)
-    to = report.steps_to_threshold(df, "gym:CartPole-v1", budget=3000)
+    df = load_run(run).df
+    to = steps_to_threshold(df, CARTPOLE, budget=3000)
     assert to.tolist()[0] == 3000 and to.isna().tolist() == [False, True, False]
-    assert report.fmt_band(report.at_budget(df, "return", 500, 10)) == "300 [300, 300] (1 seeds: no episode within the budget)"
+    assert fmt_band(at_budget(df, "return", 500, 10)) == "300 [300, 300] (1 seeds: no episode within the budget)"

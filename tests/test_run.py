@@ -1,5 +1,4 @@
 """scripts/train.py and its run folder: files, status, refusals, one-line errors, signals."""
-import importlib.util
 import json
 import signal
 import subprocess
@@ -13,19 +12,10 @@ import pytest
 from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS, resolve_config
 from trl_dgpq.collectors.runner import RunFolder, read_csv_exact
+from trl_dgpq.commands import plot, train
 
 ROOT = Path(__file__).resolve().parent.parent
 TRAIN = ROOT / "scripts" / "train.py"
-
-
-def load_script(name):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-train = load_script("train")
 
 
 def csv(path):
@@ -181,9 +171,9 @@ def test_sigint_on_a_real_run_checkpoints_and_resumes_to_the_same_csv(tmp_path):
 @pytest.mark.slow
 def test_crash_check_script(tmp_path):
     """SIGINT, SIGTERM and SIGKILL at random points of real runs (scripts/crash_check.py)."""
-    crash = load_script("crash_check")
-    assert crash.main(["--trials", "3", "--seeds", "3", "--episodes", "40", "--work", str(tmp_path),
-                       "--json", str(tmp_path / "cc.json")]) == 0
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "crash_check.py"), "--trials", "3", "--seeds", "3",
+                           "--episodes", "40", "--work", str(tmp_path), "--json", str(tmp_path / "cc.json")])
+    assert done.returncode == 0
 
 
 def test_liquidation_figures_and_table_pair_runs_by_seed_and_episode(tmp_path):
@@ -193,7 +183,6 @@ def test_liquidation_figures_and_table_pair_runs_by_seed_and_episode(tmp_path):
     common = ("--env", "liquidation", "--episodes", 3, "--trades", 10, "--horizon", 10)
     assert run("--agent", "ac-optimal", "--seeds", "0-1", "--out", tmp_path / "opt", *common) == 0
     assert run("--agent", "twap", "--seeds", "1-2", "--out", tmp_path / "twap", *common) == 0
-    plot = load_script("plot")
     assert plot.main([str(tmp_path / "opt"), str(tmp_path / "twap"), "--labels", "opt", "twap",
                       "--out", str(tmp_path / "fig"), "--block", "1"]) == 0
     assert (tmp_path / "fig" / "liquidation_cost.png").is_file() and (tmp_path / "fig" / "liquidation_time.png").is_file()

@@ -5,7 +5,7 @@ from torchrl.envs.utils import check_env_specs
 
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS, parse_seeds, resolve_config, run_experiment
 from trl_dgpq.collectors.online import OnlineCollector
-from trl_dgpq.envs import SquareEnv
+from trl_dgpq.envs.square.env import SquareEnv
 from trl_dgpq.rng import SeedStreams, splitmix64, splitmix64_reference
 
 def test_specs_and_dynamics():

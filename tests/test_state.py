@@ -8,11 +8,11 @@ import pytest
 import torch
 from tensordict import TensorDictBase
 
-from trl_dgpq.agents import AGENTS
+from trl_dgpq.agents import agent_names
 from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS, build, resolve_config
 from trl_dgpq.collectors.online import OnlineCollector
-from trl_dgpq.envs import SquareEnv
+from trl_dgpq.envs.square.env import SquareEnv
 from trl_dgpq.gp import ExactGP, ManifoldKernel, RBFKernel, SparseOnlineGP, fit
 from trl_dgpq.qhat import LipschitzQ
 from trl_dgpq.rng import SeedStreams
@@ -152,7 +152,7 @@ AGENT_CASES = {
 
 
 def test_every_agent_has_a_resume_case():
-    assert {c["agent"] for c in AGENT_CASES.values()} == set(AGENTS)
+    assert {c["agent"] for c in AGENT_CASES.values()} == set(agent_names())
 
 
 @pytest.mark.parametrize("case", sorted(AGENT_CASES))

@@ -9,9 +9,10 @@ import time
 import pandas as pd
 import pytest
 
-from tests.test_run import load_script
 from trl_dgpq.collectors import runner, sweep
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS
+from trl_dgpq.commands import reproduce
+from trl_dgpq.commands import sweep as sweep_script
 
 SWEEP_FILE = """
 [defaults]
@@ -131,7 +132,6 @@ def test_a_nan_from_the_env_fails_that_job_with_where_and_the_others_finish(tmp_
     script exits 1 and says how to rerun."""
     text = SWEEP_FILE.replace('[experiment.set]\ntrades = 8', '[experiment.set]\nannual_volatility = 200.0\ntrades = 8')
     path = write(tmp_path, text)
-    sweep_script = load_script("sweep")
     out = tmp_path / "sw"
     assert sweep_script.main([str(path), "--out", str(out), "--workers", "2"]) == 1
     report = json.loads((out / "report.json").read_text())
@@ -150,7 +150,6 @@ def test_a_nan_from_the_env_fails_that_job_with_where_and_the_others_finish(tmp_
     ("[[experiment]\nname = 1", "not valid TOML"),
 ])
 def test_a_bad_sweep_file_is_refused_before_any_job_starts(tmp_path, text, message):
-    sweep_script = load_script("sweep")
     out = tmp_path / "never"
     with pytest.raises(sweep.SweepError) as err:
         sweep.read_sweep_file(write(tmp_path, text))
@@ -175,7 +174,6 @@ def test_an_existing_sweep_is_not_overwritten_by_accident(tmp_path):
 @pytest.mark.slow
 def test_reproduce_writes_every_figure_and_the_report(tmp_path):
     """scripts/reproduce.py at its smoke scale (1 seed, a few episodes per experiment)."""
-    reproduce = load_script("reproduce")
     out = tmp_path / "repro"
     assert reproduce.main(["--scale", "smoke", "--out", str(out), "--workers", "2"]) == 0
     text = (out / "REPORT.md").read_text()

@@ -1,21 +1,54 @@
-"""The agent registry. A new agent: one file with its class (see ``base.Agent``) and
-``Config`` dataclass, one line in ``AGENTS``, one entry in ``trl_dgpq/presets.py``."""
-from ..dgpq import DGPQ
-from .base import Agent
-from .ddpg import DDPG
-from .dqn import DQN
-from .oracle import OraclePusher
-from .random import RandomAgent
-from .schedule import ACOptimalPolicy, TWAPPolicy
+"""The agent registry. A general agent (one that runs on any env whose actions suit
+it) is one file with its class (see ``base.Agent``) and ``Config`` dataclass, one
+line in ``AGENTS``, and presets in the domains it supports (``envs/<domain>/presets.py``).
+A domain's own agents (scripted baselines) are named by its ``Domain`` instead.
+Nothing is imported until an agent is used."""
+from __future__ import annotations
 
-AGENTS = {"dgpq": DGPQ, "random": RandomAgent, "ac-optimal": ACOptimalPolicy, "twap": TWAPPolicy, "ddpg": DDPG,
-          "oracle": OraclePusher, "dqn": DQN}
+import importlib
+from typing import Optional
 
-
-def make_agent(name: str, cfg, env, seeds):
-    if name not in AGENTS:
-        raise ValueError(f"unknown agent {name!r}; choose from {sorted(AGENTS)}")
-    return AGENTS[name].make(cfg, env, seeds)
+AGENTS = {
+    "dgpq": "trl_dgpq.dgpq:DGPQ",
+    "random": "trl_dgpq.agents.random:RandomAgent",
+    "ddpg": "trl_dgpq.agents.ddpg:DDPG",
+    "dqn": "trl_dgpq.agents.dqn:DQN",
+}
 
 
-__all__ = ["AGENTS", "Agent", "make_agent"]
+def baselines() -> dict:
+    """{agent name: its ``Domain``} of every domain's own agents."""
+    from trl_dgpq.envs import domains
+    return {agent: d for d in domains() for agent in d.baseline_paths}
+
+
+def agent_names() -> list:
+    return [*AGENTS, *baselines()]
+
+
+def check_agent_name(name) -> str:
+    """``name`` if it names an agent (the setting's parser)."""
+    if not isinstance(name, str) or name not in agent_names():
+        raise ValueError(f"agent must be one of {agent_names()}, got {name!r}")
+    return name
+
+
+def agent_class(name: str, env: Optional[str] = None) -> type:
+    """The class of agent ``name``; a domain's own agent only on that domain's envs."""
+    if name in AGENTS:
+        module, _, cls = AGENTS[name].partition(":")
+        return getattr(importlib.import_module(module), cls)
+    owner = baselines().get(name)
+    if owner is None:
+        check_agent_name(name)
+    from trl_dgpq.envs import split_name
+    if env is not None and split_name(env)[0] != owner.name:
+        raise ValueError(f"{name} is a baseline of the {owner.name} domain: use --env {owner.examples()[0]}")
+    return owner.baseline(name)
+
+
+def make_agent(name: str, cfg, info, seeds, env: Optional[str] = None):
+    return agent_class(name, env).make(cfg, info, seeds)
+
+
+__all__ = ["AGENTS", "agent_class", "agent_names", "baselines", "check_agent_name", "make_agent"]

@@ -2,7 +2,9 @@
 
 An agent acts for S seeds at once and learns from the TensorDicts the env hands
 the collector. Its settings are one dataclass (``Config``); it is built from
-(config, env, seeds) and keeps seeds independent: seed i alone behaves exactly as
+(config, env info, seeds) -- ``EnvInfo`` (``trl_dgpq.envs.base``): the env's specs,
+the keys its TensorDicts hold and its actions' names, never its class -- and keeps
+seeds independent: seed i alone behaves exactly as
 seed i in any batch. A non-learning agent (a scripted policy) is an agent whose
 ``observe`` does nothing.
 """
@@ -19,15 +21,15 @@ class Agent(Protocol):
     Config: type  # settings dataclass; its field defaults are the agent's defaults
 
     @classmethod
-    def resolve_config(cls, cfg, env):
-        """Validate ``cfg`` for ``env`` (raise ValueError, one line) and fill derived values."""
+    def resolve_config(cls, cfg, info):
+        """Validate ``cfg`` for the env of ``info`` (raise ValueError, one line) and fill derived values."""
 
     @classmethod
-    def make(cls, cfg, env, seeds: Sequence[int]) -> "Agent":
-        """The agent for ``seeds`` on ``env`` (``batch_size=[len(seeds)]``)."""
+    def make(cls, cfg, info, seeds: Sequence[int]) -> "Agent":
+        """The agent for ``seeds`` on the env of ``info`` (``batch_size=[len(seeds)]``)."""
 
     @staticmethod
-    def memory_bytes(cfg, env, num_seeds: int) -> int:
+    def memory_bytes(cfg, info, num_seeds: int) -> int:
         """Estimated storage, so that runs that cannot fit are refused before they start."""
 
     def act(self, td: TensorDictBase) -> torch.Tensor:
@@ -51,7 +53,7 @@ class ScriptedAgent:
     """Base of non-learning agents (scripted policies): nothing to learn, store or save."""
 
     @staticmethod
-    def memory_bytes(cfg, env, num_seeds: int) -> int:
+    def memory_bytes(cfg, info, num_seeds: int) -> int:
         return 0
 
     def observe(self, td, active=None) -> None:

@@ -25,7 +25,6 @@ from torchrl.modules import MLP, OrnsteinUhlenbeckProcessModule, TanhModule, Val
 from torchrl.objectives import DDPGLoss, SoftUpdate
 
 from ..config import require_positive, setting
-from ..envs.base import observation_dim
 from .neural import PerSeedLearners, TorchLearner
 
 
@@ -72,14 +71,6 @@ class Critic(nn.Module):
 
     def forward(self, observation, action):
         return self.head(torch.cat([self.state(observation), action], -1))
-
-
-def action_box(env) -> Bounded:
-    spec = env.action_spec
-    if not isinstance(spec, Bounded):
-        raise ValueError(f"ddpg needs a continuous (Bounded) action spec; this env's is {type(spec).__name__}"
-                         + (" (liquidation: set action_levels=0)" if hasattr(env.cfg, "action_levels") else ""))
-    return spec
 
 
 class Learner(TorchLearner):
@@ -155,18 +146,18 @@ class DDPG(PerSeedLearners):
         super().__init__(seeds, lambda torch_seed: Learner(cfg, obs_dim, box, torch_seed))
 
     @classmethod
-    def resolve_config(cls, cfg: DDPGConfig, env) -> DDPGConfig:
-        action_box(env)
+    def resolve_config(cls, cfg: DDPGConfig, info) -> DDPGConfig:
+        info.action_box("ddpg")
         return cfg.check()
 
     @classmethod
-    def make(cls, cfg: DDPGConfig, env, seeds):
-        return cls(cfg.check(), seeds, observation_dim(env), action_box(env))
+    def make(cls, cfg: DDPGConfig, info, seeds):
+        return cls(cfg.check(), seeds, info.observation_dim, info.action_box("ddpg"))
 
     @staticmethod
-    def memory_bytes(cfg: DDPGConfig, env, num_seeds: int) -> int:
+    def memory_bytes(cfg: DDPGConfig, info, num_seeds: int) -> int:
         """The replay buffers when full (observation, next observation, action, flags)."""
-        dim, act = observation_dim(env), int(action_box(env).shape[-1])
+        dim, act = info.observation_dim, int(info.action_box("ddpg").shape[-1])
         return num_seeds * cfg.buffer_size * 4 * (2 * dim + act + 4)
 
     def act(self, td) -> torch.Tensor:

@@ -27,7 +27,6 @@ from torchrl.modules import MLP, EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate
 
 from ..config import require_positive, setting
-from ..envs.base import discrete_actions, observation_dim
 from .neural import PerSeedLearners, TorchLearner
 
 
@@ -134,15 +133,15 @@ class DQN(PerSeedLearners):
         super().__init__(seeds, lambda torch_seed: Learner(cfg, obs_dim, n_actions, torch_seed))
 
     @classmethod
-    def resolve_config(cls, cfg: DQNConfig, env) -> DQNConfig:
-        discrete_actions(env, "dqn")
+    def resolve_config(cls, cfg: DQNConfig, info) -> DQNConfig:
+        info.num_actions("dqn")
         return cfg.check()
 
     @classmethod
-    def make(cls, cfg: DQNConfig, env, seeds):
-        return cls(cfg.check(), seeds, observation_dim(env), discrete_actions(env, "dqn"))
+    def make(cls, cfg: DQNConfig, info, seeds):
+        return cls(cfg.check(), seeds, info.observation_dim, info.num_actions("dqn"))
 
     @staticmethod
-    def memory_bytes(cfg: DQNConfig, env, num_seeds: int) -> int:
+    def memory_bytes(cfg: DQNConfig, info, num_seeds: int) -> int:
         """The replay buffers when full (observation, next observation, action, reward, flags)."""
-        return num_seeds * cfg.buffer_size * (4 * (2 * observation_dim(env) + 1) + 8 + 2)
+        return num_seeds * cfg.buffer_size * (4 * (2 * info.observation_dim + 1) + 8 + 2)

@@ -7,7 +7,6 @@ from typing import Sequence
 
 import torch
 
-from ..envs.base import discrete_actions
 from ..rng import POLICY_STREAM, SeedStreams
 
 
@@ -27,16 +26,16 @@ class RandomAgent:
         self.rng = SeedStreams(seeds, stream=POLICY_STREAM, device=device)
 
     @classmethod
-    def resolve_config(cls, cfg, env):
-        discrete_actions(env, "random")
+    def resolve_config(cls, cfg, info):
+        info.num_actions("random")
         return cfg.check()
 
     @classmethod
-    def make(cls, cfg, env, seeds):
-        return cls(seeds, discrete_actions(env, "random"), device=env.device)
+    def make(cls, cfg, info, seeds):
+        return cls(seeds, info.num_actions("random"), device=info.device)
 
     @staticmethod
-    def memory_bytes(cfg, env, num_seeds: int) -> int:
+    def memory_bytes(cfg, info, num_seeds: int) -> int:
         return 0
 
     def act(self, td) -> torch.Tensor:

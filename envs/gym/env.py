@@ -25,6 +25,7 @@ error. An env's own cap (truncation before ``max_steps``) ends the episode as ou
 from __future__ import annotations
 
 import functools
+import importlib
 import math
 import pickle
 from dataclasses import dataclass, replace
@@ -39,9 +40,7 @@ from torchrl.envs import GymEnv
 
 from trl_dgpq.config import setting
 
-from .base import SeedBatchedEnv
-
-PREFIX = "gym:"
+from ..base import SeedBatchedEnv
 # envs whose whole state is plain Python attributes, so a pickle of them is exact
 CHECKPOINTABLE = ("gymnasium.envs.classic_control", "gymnasium.envs.toy_text")
 
@@ -80,8 +79,13 @@ class GymConfig:
 def describe(gym_id: str):
     """(number of actions, observation low, high, registered max_episode_steps) of a
     gymnasium id, or a one-line ValueError for ids the suite cannot run."""
+    module, _, name = gym_id.rpartition(":")  # "module:id": gymnasium.make imports the module that registers it
     try:
-        spec = gymnasium.spec(gym_id)
+        if module:
+            importlib.import_module(module)
+        spec = gymnasium.spec(name)
+    except ImportError as e:
+        raise ValueError(f"gym:{gym_id}: cannot import {module}: {e}") from None
     except gymnasium.error.Error as e:
         raise ValueError(f"unknown gymnasium id gym:{gym_id}: {e}") from None
     try:
@@ -109,22 +113,33 @@ class GymSeedEnv(SeedBatchedEnv):
     Config = GymConfig
     gym_id: str = ""
 
-    def __init__(self, seeds=(0,), cfg: GymConfig | None = None, device="cpu", **overrides):
-        cfg = replace(cfg if cfg is not None else GymConfig(), **overrides).check()
-        n, low, high, registered = describe(self.gym_id)
+    @classmethod
+    def checked_config(cls, cfg: GymConfig) -> GymConfig:
+        """Checked, with max_steps filled from gymnasium's registration when 0."""
+        cfg.check()
+        _, low, _, registered = describe(cls.gym_id)
         if not cfg.max_steps:
             if not registered:
-                raise ValueError(f"gym:{self.gym_id} has no registered max_episode_steps: set max_steps")
+                raise ValueError(f"gym:{cls.gym_id} has no registered max_episode_steps: set max_steps")
             cfg = replace(cfg, max_steps=registered)
+        if cfg.obs_low and len(cfg.obs_low) != len(low):
+            raise ValueError(f"gym:{cls.gym_id} observations have {len(low)} dimensions; "
+                             f"obs_low/obs_high have {len(cfg.obs_low)}")
+        return cfg
+
+    @classmethod
+    def bounds(cls, cfg: GymConfig):
+        """(low, high) float64 tensors of the raw observations mapped onto the unit box."""
+        _, low, high, _ = describe(cls.gym_id)
         if cfg.obs_low:
-            if len(cfg.obs_low) != len(low):
-                raise ValueError(f"gym:{self.gym_id} observations have {len(low)} dimensions; "
-                                 f"obs_low/obs_high have {len(cfg.obs_low)}")
             low, high = np.asarray(cfg.obs_low, float), np.asarray(cfg.obs_high, float)
-        elif self.gym_id in BOUNDS:
-            low, high = (np.asarray(b, float) for b in BOUNDS[self.gym_id])
-        self.n_actions = n
-        self.low, self.high = torch.tensor(low), torch.tensor(high)
+        elif cls.gym_id in BOUNDS:
+            low, high = (np.asarray(b, float) for b in BOUNDS[cls.gym_id])
+        return torch.tensor(low), torch.tensor(high)
+
+    def __init__(self, seeds=(0,), cfg: GymConfig | None = None, device="cpu", **overrides):
+        cfg = self.checked_config(replace(cfg if cfg is not None else GymConfig(), **overrides))
+        self.low, self.high = self.bounds(cfg)
         self.squash = ~(torch.isfinite(self.low) & torch.isfinite(self.high))
         # x -> (x - offset) / span on bounded dimensions, fixed for the env's life
         self.offset = torch.where(self.squash, 0.0, self.low)
@@ -139,15 +154,16 @@ class GymSeedEnv(SeedBatchedEnv):
             self.close(raise_if_closed=False)
             raise
         self.started = torch.zeros(self.num_seeds, dtype=torch.bool)
-        self.raw = torch.zeros(self.num_seeds, len(low), dtype=torch.float64)  # gymnasium's observations
+        self.raw = torch.zeros(self.num_seeds, self.low.numel(), dtype=torch.float64)  # gymnasium's observations
 
-    def _make_specs(self) -> None:
-        S, d = self.num_seeds, self.low.numel()
-        self.observation_spec = Composite(
-            observation=Bounded(0.0, 1.0, shape=(S, d), dtype=torch.float64, device=self.device),
-            shape=(S,), device=self.device)
-        self.action_spec = Categorical(self.n_actions, shape=(S,), device=self.device)
-        self.reward_spec = Unbounded(shape=(S, 1), dtype=torch.float64, device=self.device)
+    @classmethod
+    def _specs(cls, cfg, S, device):
+        n, low, _, _ = describe(cls.gym_id)
+        observation = Composite(
+            observation=Bounded(0.0, 1.0, shape=(S, len(low)), dtype=torch.float64, device=device),
+            shape=(S,), device=device)
+        return (observation, Categorical(n, shape=(S,), device=device),
+                Unbounded(shape=(S, 1), dtype=torch.float64, device=device))
 
     def to_unit_box(self, raw: torch.Tensor) -> torch.Tensor:
         """Raw gymnasium observations (..., d) -> [0, 1]^d."""
@@ -228,3 +244,6 @@ def gym_env(gym_id: str) -> type:
     """The env class of gymnasium id ``gym_id`` (refused here if the suite cannot run it)."""
     describe(gym_id)
     return type(f"Gym[{gym_id}]", (GymSeedEnv,), {"gym_id": gym_id, "__module__": __name__})
+
+
+Env = GymSeedEnv  # the family's base; ``gym_env(id)`` makes each id's class

@@ -21,11 +21,11 @@ import torch
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
 from trl_dgpq.config import setting
-from trl_dgpq.rng import REWARD_NOISE_STREAM
 
-from .base import SeedBatchedEnv
+from ..base import SeedBatchedEnv
 
 MOVES = ((0.0, 1.0), (0.0, -1.0), (1.0, 0.0), (-1.0, 0.0))  # N, S, E, W
+REWARD_NOISE_STREAM = 7  # the reward noise's stream id (trl_dgpq.rng: ids 1-7 are taken)
 REWARDS = ("shaped", "paper")
 
 
@@ -61,6 +61,7 @@ class SquareEnv(SeedBatchedEnv):
     """TorchRL env, ``batch_size=[len(seeds)]``; observations are float64 ``(S, 2)``."""
 
     Config = SquareConfig
+    action_names = ("north", "south", "east", "west")
     _state_names = ("pos",)
     _streams = (("reward_rng", REWARD_NOISE_STREAM),)
 
@@ -70,13 +71,12 @@ class SquareEnv(SeedBatchedEnv):
         self.moves = torch.tensor(MOVES, dtype=torch.float64, device=self.device)
         self.pos = torch.zeros(self.num_seeds, 2, dtype=torch.float64, device=self.device)
 
-    def _make_specs(self) -> None:
-        S = self.num_seeds
-        self.observation_spec = Composite(
-            observation=Bounded(0.0, 1.0, shape=(S, 2), dtype=torch.float64, device=self.device),
-            shape=(S,), device=self.device)
-        self.action_spec = Categorical(len(MOVES), shape=(S,), device=self.device)
-        self.reward_spec = Unbounded(shape=(S, 1), dtype=torch.float64, device=self.device)
+    @classmethod
+    def _specs(cls, cfg, S, device):
+        observation = Composite(observation=Bounded(0.0, 1.0, shape=(S, 2), dtype=torch.float64, device=device),
+                                shape=(S,), device=device)
+        return (observation, Categorical(len(MOVES), shape=(S,), device=device),
+                Unbounded(shape=(S, 1), dtype=torch.float64, device=device))
 
     def _initial(self, mask):
         self.pos[mask] = 0.0
@@ -95,3 +95,6 @@ class SquareEnv(SeedBatchedEnv):
         if cfg.reward_noise:
             reward = reward + cfg.reward_noise * self.reward_rng.normal(1)[:, 0]
         return self._td(observation=self.pos.clone()), reward, terminated
+
+
+Env = SquareEnv

@@ -2,11 +2,12 @@
 
 A thin adapter: one seed of ``PushEnv`` (the same physics, rewards and random
 streams), with numpy observations and ``Discrete(4)`` actions. Registered as
-``trl_dgpq/BlockPush-v0`` when ``trl_dgpq.envs`` is imported::
+``trl_dgpq/BlockPush-v0`` by this module, which gymnasium imports itself when the id
+names it (gymnasium's "module:id" form; importing ``trl_dgpq`` registers nothing)::
 
-    import gymnasium as gym, trl_dgpq.envs
-    env = gym.make("trl_dgpq/BlockPush-v0", max_steps=50)   # any PushConfig setting
-    obs, info = env.reset(seed=3)                           # seed 3 = seed 3 of a batched run
+    import gymnasium as gym
+    env = gym.make(GYM_ID, max_steps=50)   # GYM_ID below; any PushConfig setting
+    obs, info = env.reset(seed=3)           # seed 3 = seed 3 of a batched run
 
 ``reset(seed=s)`` re-keys the env's random stream to seed s (as ``--seeds s`` does);
 without a seed, the stream goes on. ``info`` holds ``success``, ``fell_off`` and
@@ -22,9 +23,10 @@ import torch
 from gymnasium import spaces
 from tensordict import TensorDict
 
-from .push import MOVES, OBS_HIGH, OBS_LOW, PushEnv
+from .env import MOVES, OBS_HIGH, OBS_LOW, PushEnv
 
 ENV_ID = "trl_dgpq/BlockPush-v0"
+GYM_ID = f"{__name__}:{ENV_ID}"  # for gym.make: gymnasium imports this module, which registers ENV_ID
 
 
 class GymPushEnv(gym.Env):
@@ -69,6 +71,5 @@ class GymPushEnv(gym.Env):
         self.env.close()
 
 
-def register() -> None:
-    if ENV_ID not in gym.registry:
-        gym.register(ENV_ID, entry_point=GymPushEnv, max_episode_steps=None)
+if ENV_ID not in gym.registry:
+    gym.register(ENV_ID, entry_point=GymPushEnv, max_episode_steps=None)

@@ -1,8 +1,8 @@
 """Scripted liquidation schedules, the yardsticks of the liquidation env: the
 Almgren-Chriss optimum (``ac-optimal``) and TWAP (``twap``, equal trades).
 
-Each reads the trade count from the observation (trades left / N) and sells the
-schedule's fraction of the shares still held, so rounding to whole shares never
+Each reads the trades left from the step's TensorDict (``trades_left``) and sells
+the schedule's fraction of the shares still held, so rounding to whole shares never
 accumulates. Non-learning agents: ``observe`` does nothing and they hold no state.
 """
 from __future__ import annotations
@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import torch
 
-from ..almgren_chriss import ACModel
-from ..envs.liquidation import LiquidationEnv
-from .base import ScriptedAgent
+from trl_dgpq.agents.base import ScriptedAgent
+
+from .almgren_chriss import ACModel
 
 
 @dataclass
@@ -34,25 +34,22 @@ class SchedulePolicy(ScriptedAgent):
         self.fractions, self.trades = fractions.to(torch.float64), trades
 
     @classmethod
-    def resolve_config(cls, cfg, env):
-        if not isinstance(env, LiquidationEnv):
-            raise ValueError(f"{cls.name} trades a liquidation schedule: use --env liquidation")
-        if env.cfg.action_levels:
+    def resolve_config(cls, cfg, info):
+        if info.config.action_levels:
             raise ValueError(f"{cls.name} sells exact fractions: set action_levels=0 (continuous actions)")
         return cfg.check()
 
     @classmethod
-    def make(cls, cfg, env, seeds):
-        cls.resolve_config(cfg, env)
-        return cls(cls.schedule(env.model), env.cfg.trades)
+    def make(cls, cfg, info, seeds):
+        cls.resolve_config(cfg, info)
+        return cls(cls.schedule(ACModel.from_config(info.config)), info.config.trades)
 
     @staticmethod
     def schedule(model: ACModel) -> torch.Tensor:
         raise NotImplementedError
 
     def act(self, td) -> torch.Tensor:
-        left = td.get("observation")[:, -2].to(torch.float64)              # trades left / N
-        k = (self.trades - torch.round(left * self.trades)).long().clamp(0, self.trades - 1)
+        k = (self.trades - td.get("trades_left")).long().clamp(0, self.trades - 1)  # trades done
         return self.fractions[k][:, None]
 
 

@@ -17,7 +17,8 @@ with the target still let the pusher catch up and the block stop sliding, so the
 observation (positions only) describes a state at rest.
 
 Observation (6, float64): pusher xyz, block xyz (world frame, metres; clipped to
-the spec's box). Reward: 2 at the goal (block within ``goal_radius`` of ``goal``
+the spec's box); also by key, ``pusher`` and ``block`` (xyz each). Actions are named
+(``action_names``: north, south, east, west). Reward: 2 at the goal (block within ``goal_radius`` of ``goal``
 on the table), else 2 - |block - goal|_2 with the goal at the block's resting
 height. Terminated at the goal (``success``) or when the block leaves the table
 top or drops below it (``fell_off``; not a success); truncated at ``max_steps``.
@@ -43,7 +44,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
 from trl_dgpq.config import require_positive, setting
 
-from .base import SeedBatchedEnv
+from ..base import SeedBatchedEnv
 
 
 def _quiet_import():
@@ -61,7 +62,14 @@ def _quiet_import():
     return pybullet, pybullet_data
 
 
-pb, pybullet_data = _quiet_import()
+pb = pybullet_data = None  # imported with the first world: importing the domain needs no simulator
+
+
+def _load_pybullet() -> None:
+    global pb, pybullet_data
+    if pb is None:
+        pb, pybullet_data = _quiet_import()
+
 
 MOVES = ((0.0, 1.0), (0.0, -1.0), (1.0, 0.0), (-1.0, 0.0))  # N, S, E, W
 TABLE_HALF = (0.75, 0.5)     # table.urdf: a 1.5 x 1.0 top ...
@@ -131,6 +139,7 @@ class _World:
     snapshot every episode starts from."""
 
     def __init__(self, cfg: PushConfig):
+        _load_pybullet()
         self.client = pb.connect(pb.DIRECT)
         if self.client < 0:
             raise RuntimeError("pybullet could not open a DIRECT client")
@@ -220,6 +229,7 @@ class PushEnv(SeedBatchedEnv):
     observations are float64 ``(S, 6)``. ``close()`` disconnects every client."""
 
     Config = PushConfig
+    action_names = ("north", "south", "east", "west")  # MOVES: +y, -y, +x, -x
     _state_names = ("target",)
     episode_info = ("success", "fell_off", "distance")
 
@@ -241,17 +251,22 @@ class PushEnv(SeedBatchedEnv):
         self.workspace = torch.tensor(WORKSPACE, **f64)
         self.obs_low, self.obs_high = torch.tensor(OBS_LOW, **f64), torch.tensor(OBS_HIGH, **f64)
 
-    def _make_specs(self) -> None:
-        S = self.num_seeds
+    @classmethod
+    def _specs(cls, cfg, S, device):
         low = torch.tensor(OBS_LOW, dtype=torch.float64).expand(S, 6)
         high = torch.tensor(OBS_HIGH, dtype=torch.float64).expand(S, 6)
-        flag = Categorical(2, shape=(S,), dtype=torch.bool, device=self.device)
-        self.observation_spec = Composite(
-            observation=Bounded(low, high, shape=(S, 6), dtype=torch.float64, device=self.device),
-            success=flag.clone(), fell_off=flag.clone(),
-            distance=Unbounded(shape=(S,), dtype=torch.float64, device=self.device), shape=(S,), device=self.device)
-        self.action_spec = Categorical(len(MOVES), shape=(S,), device=self.device)
-        self.reward_spec = Unbounded(shape=(S, 1), dtype=torch.float64, device=self.device)
+        box = lambda part: Bounded(low[:, part], high[:, part], shape=(S, 3), dtype=torch.float64,  # noqa: E731
+                                   device=device)
+        flag = Categorical(2, shape=(S,), dtype=torch.bool, device=device)
+        observation = Composite(
+            observation=Bounded(low, high, shape=(S, 6), dtype=torch.float64, device=device),
+            pusher=box(slice(0, 3)), block=box(slice(3, 6)), success=flag.clone(), fell_off=flag.clone(),
+            distance=Unbounded(shape=(S,), dtype=torch.float64, device=device), shape=(S,), device=device)
+        return (observation, Categorical(len(MOVES), shape=(S,), device=device),
+                Unbounded(shape=(S, 1), dtype=torch.float64, device=device))
+
+    def _out(self, obs, **extra):
+        return self._td(observation=obs, pusher=obs[:, :3], block=obs[:, 3:], distance=self._distance(obs), **extra)
 
     def _observe(self) -> torch.Tensor:
         obs = torch.tensor([w.positions() for w in self.worlds], dtype=torch.float64, device=self.device)
@@ -262,8 +277,7 @@ class PushEnv(SeedBatchedEnv):
             self.worlds[i].reset()
         self.target[mask] = self.start
         false = torch.zeros(self.num_seeds, dtype=torch.bool, device=self.device)
-        obs = self._observe()
-        return self._td(observation=obs, success=false, fell_off=false.clone(), distance=self._distance(obs))
+        return self._out(self._observe(), success=false, fell_off=false.clone())
 
     def _distance(self, obs) -> torch.Tensor:
         return torch.linalg.vector_norm(obs[:, 3:] - self.goal, dim=-1)
@@ -280,10 +294,11 @@ class PushEnv(SeedBatchedEnv):
         block = obs[:, 3:]
         off = ((block[:, 0].abs() > TABLE_HALF[0]) | (block[:, 1].abs() > TABLE_HALF[1])
                | (block[:, 2] < TABLE_TOP))
-        dist = self._distance(obs)
-        success = ~off & (torch.linalg.vector_norm(block[:, :2] - self.goal[:2], dim=-1) <= cfg.goal_radius)
-        reward = torch.where(success, 2.0, 2.0 - dist)
-        return self._td(observation=obs, success=success, fell_off=off, distance=dist), reward, success | off
+        out = self._out(obs, success=~off & (torch.linalg.vector_norm(block[:, :2] - self.goal[:2], dim=-1)
+                                             <= cfg.goal_radius), fell_off=off)
+        success = out.get("success")
+        reward = torch.where(success, 2.0, 2.0 - out.get("distance"))
+        return out, reward, success | off
 
     # ------------------------------------------------------------- state
     def state_dict(self, *args, **kwargs) -> dict:
@@ -302,3 +317,6 @@ class PushEnv(SeedBatchedEnv):
         for world in getattr(self, "worlds", ()):
             world.close()
         super().close(raise_if_closed=raise_if_closed)
+
+
+Env = PushEnv

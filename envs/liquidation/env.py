@@ -8,7 +8,8 @@ sells everything. Trade k executes at S_{k-1} - (eps sign(n_k) + (eta / tau) n_k
 - gamma n_k. The episode terminates when no shares are left.
 
 Observation (8): the last six log-returns log(S_k / S_{k-1}), trades left / N,
-shares left / X. Also in every step's TensorDict, as running totals of the
+shares left / X. Also in every step's TensorDict, by key: ``trades_left`` (a count)
+and ``shares_left`` (shares), for agents that follow a schedule, and, as running totals of the
 episode (the runner puts their final values in the episode's CSV row):
 ``implementation_shortfall`` = X S_0 - sum n_k exec_k and ``ac_cost`` = shortfall +
 lambda sigma^2 tau sum x_k^2 (x_k held after trade k), whose expectation for the
@@ -40,14 +41,15 @@ from dataclasses import dataclass
 import torch
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
-from trl_dgpq.almgren_chriss import ACModel
 from trl_dgpq.config import require_positive, setting
-from trl_dgpq.rng import PRICE_STREAM, box_muller
+from trl_dgpq.rng import box_muller
 
-from .base import SeedBatchedEnv
+from ..base import SeedBatchedEnv
+from .almgren_chriss import ACModel
 
 REWARDS = ("shortfall", "utility-ratio")
 RETURNS = 6  # log-returns in the observation
+PRICE_STREAM = 5  # the price noise's stream id (trl_dgpq.rng: ids 1-7 are taken)
 
 
 @dataclass
@@ -95,6 +97,7 @@ class LiquidationEnv(SeedBatchedEnv):
     """TorchRL env, ``batch_size=[len(seeds)]``; observations float64 ``(S, 8)``."""
 
     Config = LiquidationConfig
+    action_hint = "liquidation: action_levels=0 gives a continuous sell fraction, >= 2 discrete levels"
     episode_info = ("implementation_shortfall", "ac_cost")
     _streams = (("price_rng", PRICE_STREAM),)  # keyed by episode (uniform_at): its counter never moves
     _state_names = ("x", "price", "returns", "shortfall", "ac_cost", "episode", "ou", "xi")
@@ -114,26 +117,28 @@ class LiquidationEnv(SeedBatchedEnv):
         self.xi = torch.zeros(S, cfg.trades, **f64)  # the current episode's price noise
         self.levels = torch.linspace(0, 1, cfg.action_levels, **f64) if cfg.action_levels else None
 
-    def _make_specs(self) -> None:
-        S, cfg = self.num_seeds, self.cfg
-        f64 = dict(dtype=torch.float64, device=self.device)
-        self.observation_spec = Composite(
+    @classmethod
+    def _specs(cls, cfg, S, device):
+        f64 = dict(dtype=torch.float64, device=device)
+        observation = Composite(
             observation=Unbounded(shape=(S, RETURNS + 2), **f64),
+            trades_left=Bounded(0.0, float(cfg.trades), shape=(S,), **f64),
+            shares_left=Bounded(0.0, float(cfg.shares), shape=(S,), **f64),
             implementation_shortfall=Unbounded(shape=(S,), **f64),
             ac_cost=Unbounded(shape=(S,), **f64),
-            shape=(S,), device=self.device)
+            shape=(S,), device=device)
         if cfg.action_levels:
-            self.action_spec = Categorical(cfg.action_levels, shape=(S,), device=self.device)
+            action = Categorical(cfg.action_levels, shape=(S,), device=device)
         else:
-            self.action_spec = Bounded(0.0, 1.0, shape=(S, 1), **f64)
-        self.reward_spec = Unbounded(shape=(S, 1), **f64)
+            action = Bounded(0.0, 1.0, shape=(S, 1), **f64)
+        return observation, action, Unbounded(shape=(S, 1), **f64)
 
     def _observation(self, trades_done):
         cfg = self.cfg
-        left = (cfg.trades - trades_done).to(torch.float64) / cfg.trades
-        obs = torch.cat([self.returns, left[:, None], (self.x / cfg.shares)[:, None]], -1)
-        return self._td(observation=obs, implementation_shortfall=self.shortfall.clone(),
-                        ac_cost=self.ac_cost.clone())
+        left = (cfg.trades - trades_done).to(torch.float64)
+        obs = torch.cat([self.returns, (left / cfg.trades)[:, None], (self.x / cfg.shares)[:, None]], -1)
+        return self._td(observation=obs, trades_left=left, shares_left=self.x.clone(),
+                        implementation_shortfall=self.shortfall.clone(), ac_cost=self.ac_cost.clone())
 
     def _initial(self, mask):
         self.x[mask] = float(self.cfg.shares)
@@ -178,3 +183,6 @@ class LiquidationEnv(SeedBatchedEnv):
         self.shortfall.add_(trade_cost)
         self.ac_cost.add_(trade_cost + risk)
         return self._observation(self.t + 1), reward, x_new <= 0  # (the base advances t after this)
+
+
+Env = LiquidationEnv

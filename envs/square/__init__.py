@@ -1,0 +1,4 @@
+"""The 2-D square of GWH14's first experiment (SPEC 3.1)."""
+from ..domain import Domain
+
+DOMAIN = Domain(__name__)

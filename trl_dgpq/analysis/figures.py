@@ -1,0 +1,60 @@
+"""Figures any run gets, and the drawing helpers the domains' figures share."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.ticker  # noqa: E402
+
+from .summary import band  # noqa: E402
+
+FIGURES = {
+    "steps_per_episode.png": ("steps per episode", lambda df: df["steps"]),
+    "time_per_step.png": ("CPU time per step (ms, per seed)", lambda df: df["cpu_s"] / df["steps"] * 1e3),
+}
+
+
+def save(fig, path: Path, title: str = "") -> Path:
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def log_steps_axis(ax) -> None:
+    ax.set_yscale("log")
+    ax.yaxis.set_major_locator(matplotlib.ticker.FixedLocator([5, 10, 15, 20, 30, 50, 100, 200, 500]))
+    ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+    ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+
+
+def band_plot(ax, df, values, label: str):
+    """Median across seeds per episode, with the inter-quartile band; returns the line."""
+    b = band(df, values)
+    line, = ax.plot(b.index, b["median"], label=label, lw=1.2)
+    ax.fill_between(b.index, b["q25"], b["q75"], color=line.get_color(), alpha=0.25, lw=0)
+    return line
+
+
+def episode_figures(runs, labels, out: Path, logy_steps: bool = True, title: str = "") -> list:
+    """steps_per_episode.png and time_per_step.png: median and IQR across seeds per episode."""
+    written = []
+    for fname, (ylabel, value) in FIGURES.items():
+        fig, ax = plt.subplots(figsize=(6.4, 4.0))
+        for run, label in zip(runs, labels):
+            band_plot(ax, run.df, value(run.df), f"{label} (median, {run.df.seed.nunique()} seeds)")
+        ax.set_xlabel("episode")
+        ax.set_ylabel(ylabel)
+        if fname.startswith("steps") and logy_steps:
+            log_steps_axis(ax)
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(title="shaded: inter-quartile range", fontsize=8, title_fontsize=8, loc="best")
+        if title:
+            ax.set_title(title, fontsize=9)
+        written.append(save(fig, out / fname))
+    return written

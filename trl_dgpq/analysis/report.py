@@ -1,0 +1,114 @@
+"""Compare learners by the environment steps they needed (``scripts/report.py``).
+
+Runs are grouped by env and env settings. For each group, ``compare-<env>.png`` plots
+the domain's measure against environment steps (each seed's mean over its last
+``window`` episodes, as it stood at that step; median and IQR over seeds), and
+``compare.md`` holds one table:
+
+- steps to threshold (the domain's ``Threshold``): the environment steps a seed had
+  taken when the mean of its last few episodes first met it, within the budget;
+  median over seeds, counting a seed that never met it as "never" (so the median is
+  "never" unless more than half met it), and how many met it;
+- at budget: the mean of each seed's last ``window`` episodes that ended within the
+  budget (default: the runs' common ``env_steps``, else the fewest steps any of their
+  seeds ran), median and IQR over seeds.
+"""
+from __future__ import annotations
+
+import json
+import re
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .runs import load_run
+from .summary import at_budget, curve, kernel_fits_per_seed, ms_per_seed_step, steps_to_threshold
+
+
+def default_budget(entries) -> int:
+    """The runs' common ``env_steps`` budget, else the fewest steps any of their seeds ran."""
+    budgets = {run.config["run"].get("env_steps", 0) for _, run in entries}
+    if len(budgets) == 1 and budgets != {0}:
+        return budgets.pop()
+    return int(min(run.df.groupby("seed")["env_steps"].max().min() for _, run in entries))
+
+
+def group_name(env: str, settings: dict, others: list) -> str:
+    """The env's name, plus the settings where this group differs from the env's other groups."""
+    differ = sorted(k for k in settings if any(o.get(k) != settings[k] for o in others))
+    return env + (" (" + ", ".join(f"{k}={settings[k]}" for k in differ) + ")" if differ else "")
+
+
+def fmt_steps(steps: pd.Series) -> str:
+    """Median over seeds (a seed that never met the threshold counts as larger than any)."""
+    n, met = len(steps), int(steps.notna().sum())
+    med = steps.fillna(np.inf).median()
+    return f"{'never' if np.isinf(med) else f'{med:,.0f}'} ({met}/{n} seeds met it)"
+
+
+def fmt_band(v: pd.Series) -> str:
+    missing = int(v.isna().sum())
+    v = v.dropna()
+    text = f"{v.median():.4g} [{v.quantile(0.25):.4g}, {v.quantile(0.75):.4g}]" if len(v) else "–"
+    return text + (f" ({missing} seeds: no episode within the budget)" if missing else "")
+
+
+def kernel_fits_cell(run) -> str:
+    if "kernel_fits" in run.df:
+        return f"{kernel_fits_per_seed(run.df):.1f}"
+    return "0" if run.agent == "dgpq" else "–"  # DGPQ with RBF trains no kernel
+
+
+def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
+    """Figures and the markdown table; returns (written paths, markdown text). ``labels``:
+    one per run, or None for each run's agent and preset."""
+    import matplotlib.pyplot as plt
+
+    from .figures import save
+    loaded = [load_run(r) for r in runs]
+    labels = labels or [f"{run.agent} {run.preset}" for run in loaded]
+    groups = {}  # runs on the same env with the same env settings
+    for run, label in zip(loaded, labels):
+        groups.setdefault((run.env, json.dumps(run.config["env"], sort_keys=True)), []).append((label, run))
+    out.mkdir(parents=True, exist_ok=True)
+    written, lines = [], ["# Environment steps to a threshold, and performance at a budget", ""]
+    for (env, _), entries in groups.items():
+        first = entries[0][1]
+        name = group_name(env, first.config["env"], [json.loads(k[1]) for k in groups if k[0] == env])
+        column, ylabel = first.domain.measure(first.env_id)
+        threshold = first.domain.threshold(first.env_id)
+        b = budget or default_budget(entries)
+        lines += [f"## {name}", "",
+                  f"Budget: {b:,} environment steps per seed. Threshold: "
+                  f"{threshold.text if threshold else 'none defined'}. "
+                  f"At budget: {ylabel}, mean of each seed's last {window} episodes within the budget; "
+                  "median [IQR] over seeds.", "",
+                  "| run | seeds | steps to threshold (median) | at budget | kernel fits / seed | ms / seed-step |",
+                  "|---|---|---|---|---|---|"]
+        fig, ax = plt.subplots(figsize=(6.8, 4.2))
+        grid = np.linspace(0, b, 200)[1:]
+        for label, run in entries:
+            df = run.df
+            to = fmt_steps(steps_to_threshold(df, threshold, b)) if threshold else "–"
+            lines.append(f"| {label} | {df.seed.nunique()} | {to} | {fmt_band(at_budget(df, column, b, window))} "
+                         f"| {kernel_fits_cell(run)} | {ms_per_seed_step(df):.2f} |")
+            c = curve(df, column, window, grid)
+            with warnings.catch_warnings():  # grid points no seed has reached yet stay NaN
+                warnings.simplefilter("ignore", RuntimeWarning)
+                med, lo, hi = (np.nanquantile(c, q, axis=0) for q in (0.5, 0.25, 0.75))
+            line, = ax.plot(grid, med, label=f"{label} ({df.seed.nunique()} seeds)")
+            ax.fill_between(grid, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
+        if threshold and threshold.column == column:
+            ax.axhline(threshold.value, color="k", lw=0.8, ls="--", label="threshold")
+        ax.set_xlabel("environment steps per seed")
+        ax.set_ylabel(f"{ylabel} (mean of last {window})")
+        ax.set_title(f"{name}: median and IQR over seeds", fontsize=10)
+        ax.legend(fontsize=8)
+        written.append(save(fig, out / f"compare-{re.sub(r'[^A-Za-z0-9.=_-]+', '-', name).strip('-')}.png"))
+        lines.append("")
+    text = "\n".join(lines)
+    (out / "compare.md").write_text(text)
+    written.append(out / "compare.md")
+    return written, text

@@ -1,0 +1,65 @@
+"""Loading runs: a run folder (``train.py --out``) or a sweep's experiment folder (its
+merged ``episodes.csv``, the config of its first job)."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import pandas as pd
+
+
+def read_csv_exact(path) -> pd.DataFrame:
+    """read_csv that gives back exactly the floats written (pandas >= 3 does by default;
+    older pandas needs the round-trip parser)."""
+    exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+    return pd.read_csv(path, **exact)
+
+
+@dataclass
+class Run:
+    """A finished run's episodes (sorted by seed and episode, with each seed's cumulative
+    ``env_steps``) and its config."""
+    path: Path
+    df: pd.DataFrame
+    config: dict
+
+    @property
+    def env(self) -> str:
+        return self.config["run"]["env"]
+
+    @property
+    def agent(self) -> str:
+        return self.config["run"]["agent"]
+
+    @property
+    def preset(self) -> str:
+        return self.config["run"]["preset"]
+
+    @property
+    def gamma(self):
+        """The agent's discount (None for agents without one, e.g. schedules)."""
+        return self.config["agent"].get("gamma")
+
+    @cached_property
+    def domain(self):
+        from trl_dgpq.envs import domain
+        return domain(self.env)
+
+    @property
+    def env_id(self):
+        from trl_dgpq.envs import split_name
+        return split_name(self.env)[1]
+
+
+def load_run(folder) -> Run:
+    """The run in ``folder``; ValueError (one line) if it holds none."""
+    folder = Path(folder)
+    configs = [folder / "config.json"] + sorted((folder / "jobs").glob("*/config.json"))
+    config = next((c for c in configs if c.exists()), None)
+    if config is None or not (folder / "episodes.csv").exists():
+        raise ValueError(f"{folder} is not a finished run (needs episodes.csv and a config.json)")
+    df = read_csv_exact(folder / "episodes.csv").sort_values(["seed", "episode"], kind="stable")
+    df["env_steps"] = df.groupby("seed")["steps"].cumsum()
+    return Run(folder, df.reset_index(drop=True), json.loads(config.read_text()))

@@ -1,0 +1,72 @@
+"""Figures of a run (or of several runs, overlaid), from OUT/episodes.csv.
+
+    python scripts/plot.py runs/square-shaped
+    python scripts/plot.py                      # the newest folder under runs/
+    python scripts/plot.py runs/a runs/b --labels rbf manifold --out cmp/
+
+Writes into the (first) run folder, or --out:
+    steps_per_episode.png   steps to goal per episode (seed report Fig. 2)
+    time_per_step.png       CPU time per step per episode (seed report Fig. 3)
+Each curve is the median across seeds with the inter-quartile band.
+
+Runs that all belong to a domain with figures of its own get those instead
+(``figures`` in ``envs/<domain>/analysis.py``):
+    liquidation             liquidation_cost.png (mean shortfall and ac_cost per block of
+                            episodes against the AC optimum, seed report Fig. 6), liquidation_time.png
+                            (Fig. 7), comparison.md (costs as ratios to an ac-optimal run on the
+                            same (seed, episode) price paths, over the last --last episodes)
+    push                    push.png (the block's final distance to the goal and the success rate
+                            per episode, Fig. 5), push.md (success, steps, fall-offs over the last
+                            --last episodes)
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from trl_dgpq.analysis import load_run
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="plot.py", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("runs", nargs="*", help="run folders holding episodes.csv (default: newest under runs/)")
+    p.add_argument("--labels", nargs="+", default=None)
+    p.add_argument("--out", default=None, help="folder for the PNGs (default: the first run folder)")
+    p.add_argument("--linear", action="store_true", help="linear y axis for steps")
+    p.add_argument("--block", type=int, default=100, help="liquidation: episodes per plotted mean")
+    p.add_argument("--last", type=int, default=None,
+                   help="episodes at the end that a domain's table uses (liquidation: 1000, push: 20)")
+    args = p.parse_args(argv)
+    if not args.runs:
+        found = sorted(Path("runs").glob("*/episodes.csv"), key=lambda f: f.stat().st_mtime)
+        if not found:
+            p.error("no run folder given and none found under runs/")
+        args.runs = [str(found[-1].parent)]
+    for r in args.runs:
+        if not (Path(r) / "episodes.csv").is_file():
+            p.error(f"{r}/episodes.csv not found (run scripts/train.py --out {r} first)")
+    labels = args.labels or [Path(r).name for r in args.runs]
+    if len(labels) != len(args.runs):
+        p.error("give one label per run")
+    try:
+        runs = [load_run(r) for r in args.runs]
+    except ValueError as err:
+        p.error(str(err))
+    out = Path(args.out or args.runs[0])
+    out.mkdir(parents=True, exist_ok=True)
+    domains = {run.domain.name for run in runs}
+    own = getattr(runs[0].domain.analysis(), "figures", None) if len(domains) == 1 else None
+    if own is not None:
+        written = own(runs, labels, out, block=args.block, last=args.last)
+    else:
+        from trl_dgpq.analysis.figures import episode_figures
+        written = episode_figures(runs, labels, out, logy_steps=not args.linear)
+    for path in written:
+        print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,45 @@
+"""Compare learners by the environment steps they needed (issue 11).
+
+    python scripts/report.py RUN [RUN ...] [--labels A B ...] [--budget N] [--out DIR]
+
+A RUN is a run folder (``train.py --out``) or an experiment folder of a sweep
+(``sweep.py``: its merged ``episodes.csv``, the config from its first job). Runs are
+grouped by env. For each env, ``compare-<env>.png`` plots the env's measure against
+environment steps and ``compare.md`` holds one table: steps to the domain's threshold
+and performance at a budget (``trl_dgpq/analysis/report.py`` says how each is counted).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from trl_dgpq.analysis.report import report
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="report.py", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("runs", nargs="+", help="run folders or sweep experiment folders")
+    p.add_argument("--labels", nargs="+", default=None, help="one per run (default: agent and preset)")
+    p.add_argument("--budget", type=int, default=None, help="environment steps per seed for the 'at budget' column")
+    p.add_argument("--window", type=int, default=10, help="episodes in the running mean of the curves and table")
+    p.add_argument("--out", default=None, help="folder for the figures and compare.md (default: the first run's)")
+    args = p.parse_args(argv)
+    try:
+        if args.labels and len(args.labels) != len(args.runs):
+            raise ValueError(f"{len(args.runs)} runs need {len(args.runs)} labels, got {len(args.labels)}")
+        if args.window < 1 or (args.budget is not None and args.budget < 1):
+            raise ValueError("--window and --budget must be positive")
+        written, text = report(args.runs, args.labels, Path(args.out or args.runs[0]), args.budget, args.window)
+    except ValueError as err:
+        print(f"report.py: error: {err}", file=sys.stderr)
+        return 2
+    print(text)
+    for path in written:
+        print("wrote", path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

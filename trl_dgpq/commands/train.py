@@ -1,0 +1,157 @@
+#!/usr/bin/env python
+"""Run an agent on an environment for many seeds at once, into a run folder.
+
+    python scripts/train.py                                   # square, dgpq, "shaped" preset, 8 seeds
+    python scripts/train.py --preset report --seeds 3-7 --gp exact
+    python scripts/train.py --agent random --episodes 20 --set env.noise=0.02
+    python scripts/train.py --config runs/X/config.json --out runs/again    # repeat a recorded run
+    python scripts/train.py --resume runs/X                                 # continue an interrupted run
+
+Every setting of the run, the env and the agent is a flag (``--noise-var 0.2``)
+and can be given as ``--set key=value`` (``--set gp.noise_var=0.2``); both are
+generated from the config dataclasses, whose defaults they show. A preset
+(``envs/<domain>/presets.py``) is applied first, flags on top.
+
+Writes OUT/config.json, OUT/status.json, OUT/episodes.csv (rows appended as
+episodes end) and OUT/checkpoint.pt. Same config and seeds -> identical
+episodes.csv apart from the timing columns (wall_s, cpu_s, us_per_step).
+Errors in what you asked for end in one line and exit code 2; an interrupted
+run (Ctrl-C, SIGTERM) saves a checkpoint and exits 130 / 143.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+
+from trl_dgpq.analysis import ms_per_seed_step
+from trl_dgpq.collectors import runner
+from trl_dgpq.collectors.experiment import cli_owners, describe, quiet_torchrl, resolve_config
+from trl_dgpq.config import describe_default
+from trl_dgpq.envs import domain
+
+PROCESS_FLAGS = ("out", "resume", "overwrite", "config", "set", "no_progress")
+
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit 2 (argparse prints the whole usage first)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def make_parser() -> argparse.ArgumentParser:
+    p = Parser(prog="train.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", default=None, help="run folder (default runs/<env>-<agent>-<preset>-<time>); "
+                                               "refused if it holds a run, unless --overwrite")
+    p.add_argument("--overwrite", action="store_true", help="replace the run in --out")
+    p.add_argument("--resume", metavar="OUT", default=None, help="continue the run in OUT from its last checkpoint")
+    p.add_argument("--config", metavar="FILE", default=None,
+                   help="start from a recorded config.json (flags override it)")
+    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
+                   help="any setting, e.g. --set gp.noise_var=0.2 (repeatable)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    g = p.add_argument_group("settings (generated from the config dataclasses; default in brackets)")
+    for key, owners in cli_owners().items():
+        flag = "--" + key.replace("_", "-")
+        leaf = owners[0][1]
+        if len(owners) == 1:
+            text = f"{leaf.help} [{describe_default(leaf)}]"
+            if leaf.choices:
+                text += f" {{{', '.join(leaf.choices)}}}"
+        else:  # the same name in several configs: each one's default (and choices)
+            text = leaf.help + " [" + "; ".join(
+                f"{name.removesuffix('Config')}: {describe_default(lf)}"
+                + (f" {{{', '.join(lf.choices)}}}" if lf.choices else "") for name, lf in owners) + "]"
+        if leaf.type is bool:
+            g.add_argument(flag, dest=key, action=argparse.BooleanOptionalAction, default=None, help=text)
+        else:
+            g.add_argument(flag, dest=key, default=None, metavar=key.upper(), help=text)
+    return p
+
+
+def given_settings(args, parser) -> dict:
+    """The settings named on the command line: flags, then --set."""
+    settings = {k: v for k, v in vars(args).items() if k not in PROCESS_FLAGS and v is not None}
+    for item in args.set:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip():
+            parser.error(f"--set wants KEY=VALUE, got {item!r}")
+        settings[key.strip()] = value
+    return settings
+
+
+def main(argv=None) -> int:
+    quiet_torchrl()
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # Ctrl-C before the run started (a started run checkpoints instead)
+        print("interrupted before the run started", file=sys.stderr)
+        return 130
+
+
+def attach_negative_lists(argv):
+    """argparse reads ``--goal -0.3,0.2`` as two options (only plain negative numbers pass);
+    join such a comma list of numbers to its flag: ``--goal=-0.3,0.2``."""
+    out = []
+    for token in argv:
+        if (out and out[-1].startswith("--") and "=" not in out[-1]
+                and re.fullmatch(r"-[\d.][\d.eE+-]*(,\s*-?[\d.][\d.eE+-]*)+,?", token)):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
+
+
+def _main(argv=None) -> int:
+    parser = make_parser()
+    args = parser.parse_args(attach_negative_lists(sys.argv[1:] if argv is None else list(argv)))
+    settings = given_settings(args, parser)
+    try:
+        if args.resume:
+            if settings or args.config or args.out or args.overwrite:
+                parser.error("--resume continues a run as it was configured: give no settings, --config, --out "
+                             "or --overwrite with it")
+            folder = runner.RunFolder.existing(args.resume)
+            config = runner.resumable_config(folder)
+            print(f"resuming {folder.path}")
+            df = runner.resume(folder, config, progress=not args.no_progress)
+        else:
+            base = None
+            if args.config:
+                try:
+                    with open(args.config) as f:
+                        base = json.load(f)
+                except (OSError, ValueError) as err:
+                    parser.error(f"cannot read --config {args.config}: {err}")
+            config = resolve_config(settings, base=base)
+            runner.check_memory(config)
+            run = config["run"]
+            folder = runner.RunFolder.create(args.out, describe(config).replace("/", "-"), args.overwrite)
+            print(f"{describe(config)}: {len(run['seeds'])} seeds x {run['episodes']} episodes -> {folder.path}")
+            df = runner.start(config, folder, progress=not args.no_progress)
+    except runner.Interrupted as stop:
+        print(f"{stop} after {stop.episodes_done} episodes; checkpoint saved. "
+              f"Continue with: python scripts/train.py --resume {stop.folder.path}", file=sys.stderr)
+        return stop.exit_code
+    except ValueError as err:  # everything the user asked for is checked before any work
+        parser.error(str(err))
+    summarise(df, config)
+    print(f"wrote {folder.path}/episodes.csv; plot: python scripts/plot.py {folder.path}")
+    return 0
+
+
+def summarise(df, config) -> None:
+    """A few lines on the run; a domain adds its own (``summary`` in its analysis.py)."""
+    steps = df.pivot(index="episode", columns="seed", values="steps")
+    late = df[df.episode >= 3]
+    line = f"steps per episode, median over seeds: episode 1: {steps.loc[1].median():g}"
+    if len(late):
+        line += f", episodes 3+: {late.steps.median():g}"
+    print(f"{line}; terminated in {df.terminated.mean():.0%} of episodes; "
+          f"{ms_per_seed_step(df) * 1e3:.0f} us per seed-step")
+    for extra in getattr(domain(config["run"]["env"]).analysis(), "summary", lambda df: [])(df):
+        print(extra)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
