@@ -21,7 +21,7 @@ from typing import Any, Dict, List, Optional, Tuple
 import pandas as pd
 
 from trl_dgpq.agents import agent_class, agent_names, check_agent_name
-from trl_dgpq.config import find_leaf, from_dict, leaves, setting, to_dict, with_overrides
+from trl_dgpq.config import check_config, find_leaf, from_dict, leaves, setting, to_dict, with_overrides
 from trl_dgpq.envs import check_env_name, domains, env_class, env_configs, make_env
 from trl_dgpq.presets import preset_overrides, preset_table
 
@@ -75,19 +75,11 @@ class RunConfig:
     seeds: Tuple[int, ...] = setting(tuple(range(8)), "count N (seeds 0..N-1), range A-B (inclusive) or "
                                                       "list a,b,c; all run in one batch",
                                      parse=lambda v: tuple(parse_seeds(v)))
-    episodes: int = setting(50, "episodes per seed")
+    episodes: int = setting(50, "episodes per seed", within="[1, inf)")
     env_steps: int = setting(0, "budget of environment steps per seed: a seed stops at the end of the episode "
-                                "that reaches it (0: none; episodes still caps)")
-    checkpoint_every: int = setting(10, "checkpoint every K episodes per seed (0: only on interrupt and at the end)")
-
-    def check(self) -> "RunConfig":
-        if self.episodes < 1:
-            raise ValueError(f"episodes must be >= 1, got {self.episodes}")
-        if self.env_steps < 0:
-            raise ValueError(f"env_steps must be >= 0, got {self.env_steps}")
-        if self.checkpoint_every < 0:
-            raise ValueError(f"checkpoint_every must be >= 0, got {self.checkpoint_every}")
-        return self
+                                "that reaches it (0: none; episodes still caps)", within="[0, inf)")
+    checkpoint_every: int = setting(10, "checkpoint every K episodes per seed (0: only on interrupt and at the end)",
+                                    within="[0, inf)")
 
 
 def classes(run: dict):
@@ -135,7 +127,7 @@ def resolve_config(settings: Optional[Dict[str, Any]] = None, base: Optional[dic
     Raises ValueError with one line for anything wrong."""
     settings = {**(settings or {}), **kw}
     start = from_dict(RunConfig, base["run"]) if base else RunConfig()
-    run = with_overrides(start, run_settings(settings)).check()
+    run = check_config(with_overrides(start, run_settings(settings)))
     if base and (run.env, run.agent) != (base["run"]["env"], base["run"]["agent"]):
         raise ValueError("a recorded config keeps its env and agent; start a new run to change them")
     env_cls, agent_cls = classes(to_dict(run))

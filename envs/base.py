@@ -23,6 +23,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite
 from torchrl.envs import EnvBase
 
+from trl_dgpq.config import check_config
 from trl_dgpq.rng import ENV_STREAM, SeedStreams
 
 
@@ -115,7 +116,7 @@ class SeedBatchedEnv(EnvBase):
     @classmethod
     def checked_config(cls, cfg):
         """``cfg`` checked (and completed, where an env fills a value from elsewhere)."""
-        return cfg.check()
+        return check_config(cfg)
 
     @classmethod
     def describe(cls, cfg=None, device="cpu") -> EnvInfo:

@@ -1,5 +1,6 @@
 """One source of truth: dataclass defaults -> presets (overrides only) -> flags / --set."""
 import math
+import re
 from dataclasses import dataclass
 from typing import Optional, Tuple
 
@@ -9,7 +10,7 @@ from trl_dgpq.agents import agent_class, agent_names
 from trl_dgpq.bounds import box_covering, section5
 from trl_dgpq.collectors.experiment import RunConfig, cli_leaves, resolve_config
 from trl_dgpq.commands import train
-from trl_dgpq.config import find_leaf, from_dict, leaves, nested, setting, to_dict, with_overrides
+from trl_dgpq.config import check_config, find_leaf, from_dict, leaves, nested, setting, to_dict, with_overrides
 from trl_dgpq.dgpq import DGPQConfig
 from trl_dgpq.envs import domains, env_class, env_configs
 from trl_dgpq.envs.square.env import SquareEnv
@@ -44,8 +45,8 @@ def test_no_hand_written_hyperparameter_flags():
     (["--gp", "exact", "--kernel", "manifold"], ("agent", "gp", "kernel"), "manifold"),
     (["--kernel-hidden", "16,16"], ("agent", "gp", "kernel_hidden"), [16, 16]),
     (["--no-kernel-skip"], ("agent", "gp", "kernel_skip"), False),
-    (["--kernel-train-every", "7"], ("agent", "gp", "kernel_train_every"), 7),
-    (["--kernel-lr", "0.1"], ("agent", "gp", "kernel_lr"), 0.1), (["--max-steps", "50"], ("env", "max_steps"), 50),
+    (["--kernel-train-every", "7"], ("agent", "kernel_train_every"), 7),
+    (["--kernel-lr", "0.1"], ("agent", "kernel_lr"), 0.1), (["--max-steps", "50"], ("env", "max_steps"), 50),
     (["--preset", "paper"], ("env", "reward"), "paper"), (["--seeds", "3-5"], ("run", "seeds"), [3, 4, 5]),
     (["--episodes", "7"], ("run", "episodes"), 7), (["--checkpoint-every", "3"], ("run", "checkpoint_every"), 3),
 ])
@@ -143,6 +144,62 @@ def test_values_are_parsed_against_the_field_types():
             with_overrides(Outer(), {key: value})
     with pytest.raises(ValueError, match="unknown Outer settings"):
         from_dict(Outer, {"rate": 1.0, "speed": 2})
+
+
+@dataclass
+class Declared:
+    share: float = setting(0.5, "a share", within="[0, 1]")
+    rate: Optional[float] = setting(1.0, "a rate", within="(0, inf)")
+    widths: Tuple[int, ...] = setting((4,), "widths", within="[1, inf)", length=(1, 3))
+    xy: Tuple[float, ...] = setting((0.0, 0.0), "a point", within="(-inf, inf)", length=2)
+    low: float = setting(0.0, "low")
+    high: float = setting(1.0, "high")
+    inner: Inner = nested(Inner)
+
+    def cross_check(self):
+        if self.low >= self.high:
+            raise ValueError("need low < high")
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("share", 1.5, "share must be in [0, 1], got 1.5"), ("share", -0.0001, "share must be in [0, 1]"),
+    ("share", math.nan, "share must be in [0, 1], got nan"), ("rate", 0.0, "rate must be > 0, got 0"),
+    ("rate", math.inf, "rate must be > 0, got inf"), ("widths", (4, 0), "widths must each be >= 1, got [4, 0]"),
+    ("widths", (), "widths needs 1 to 3 values, got []"), ("widths", (1, 2, 3, 4), "widths needs 1 to 3 values"),
+    ("xy", (0.0, math.inf), "xy must each be finite"), ("xy", (1.0,), "xy needs 2 values, got [1.0]"),
+    ("low", 2.0, "need low < high"),
+])
+def test_declared_constraints_refuse_values_outside_them_in_one_line(key, value, words):
+    """Ranges hold for a number or each item of a tuple, NaN is never inside one, an infinite
+    value only where the range is closed there; the class's cross_check runs after them."""
+    with pytest.raises(ValueError, match=re.escape(words)) as err:
+        with_overrides(Declared(), {key: value})
+    assert "\n" not in str(err.value)
+    with pytest.raises(ValueError, match=re.escape(words)):
+        check_config(Declared(**{key: value}))                    # built directly: the same check
+    assert check_config(Declared(rate=None, share=1.0, widths=(1, 2, 3))).share == 1.0   # edges and None pass
+
+
+def test_constraints_of_nested_configs_and_choices_are_checked():
+    @dataclass
+    class Leaf:
+        n: int = setting(1, "n", within="[1, inf)")
+        mode: str = setting("a", "mode", choices=("a", "b"))
+
+    @dataclass
+    class Root:
+        leaf: Leaf = nested(Leaf)
+    with pytest.raises(ValueError, match="n must be >= 1, got 0"):
+        check_config(Root(Leaf(n=0)))
+    with pytest.raises(ValueError, match="mode must be one of"):
+        check_config(Root(Leaf(mode="c")))
+
+
+@pytest.mark.parametrize("config_class", sorted({cls for cls in [RunConfig] + env_configs()
+                                                 + [agent_class(a).Config for a in agent_names()]},
+                                                key=lambda c: c.__name__), ids=lambda c: c.__name__)
+def test_every_settings_default_meets_its_own_constraints(config_class):
+    check_config(config_class())
 
 
 def test_help_gives_each_configs_default_for_a_shared_flag():

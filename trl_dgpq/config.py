@@ -1,14 +1,22 @@
 """One source of truth for settings: config dataclasses.
 
 Every env and agent has one dataclass; its fields hold the defaults, and each
-field's metadata holds the help text (and, rarely, a flag name or choices).
-From these the command line, ``--set key=value``, presets and ``config.json``
-are all derived, so a new setting is one new field.
+field's metadata holds the help text and the field's constraints (a range, a
+length, choices; rarely a flag name). From these the command line, ``--set
+key=value``, presets, ``config.json`` and the checks are all derived, so a new
+setting is one new field.
 
     @dataclass
     class MyConfig:
-        gamma: float = setting(0.99, "discount")
+        gamma: float = setting(0.99, "discount", within="[0, 1]")
+        widths: Tuple[int, ...] = setting((64,), "hidden widths", within="[1, inf)", length=(1, None))
         gp: GPConfig = nested(GPConfig)      # a sub-config, flattened: --noise-var, --set gp.noise_var=...
+
+        def cross_check(self):               # only what relates fields to each other
+            ...
+
+``check_config(cfg)`` checks every declared constraint (nested configs too), then
+``cross_check``; it is the one check, made before any work.
 
 A *leaf* is a non-dataclass field; its *key* is the field name (or metadata
 ``flag``), unique across a config tree, and its *path* is the dotted field path.
@@ -19,25 +27,90 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import typing
 from dataclasses import dataclass, field, fields, is_dataclass
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
 
+@dataclass(frozen=True)
+class Interval:
+    """A range of numbers written as in mathematics: "[0, 1]", "(0, inf)", "[1, inf)"."""
+    low: float
+    high: float
+    closed_low: bool
+    closed_high: bool
+
+    @classmethod
+    def parse(cls, text: str) -> "Interval":
+        m = re.fullmatch(r"\s*([\[(])\s*(-?inf|[-+.\deE]+)\s*,\s*(-?inf|[-+.\deE]+)\s*([\])])\s*", text)
+        if not m:
+            raise TypeError(f"not an interval: {text!r} (write e.g. [0, 1] or (0, inf))")
+        return cls(float(m.group(2)), float(m.group(3)), m.group(1) == "[", m.group(4) == "]")
+
+    def __contains__(self, v) -> bool:
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            return False
+        above = v >= self.low if self.closed_low else v > self.low
+        below = v <= self.high if self.closed_high else v < self.high
+        return above and below and (math.isfinite(v) or v in (self.low, self.high))
+
+    def __str__(self) -> str:
+        g = lambda v: f"{v:g}"  # noqa: E731
+        if (self.low, self.high) == (-math.inf, math.inf):
+            return "finite" if not (self.closed_low or self.closed_high) else f"in {self.describe_ends()}"
+        if self.high == math.inf:
+            return f"{'>=' if self.closed_low else '>'} {g(self.low)}"
+        if self.low == -math.inf:
+            return f"{'<=' if self.closed_high else '<'} {g(self.high)}"
+        return f"in {self.describe_ends()}"
+
+    def describe_ends(self) -> str:
+        return f"{'[' if self.closed_low else '('}{self.low:g}, {self.high:g}{']' if self.closed_high else ')'}"
+
+
 def setting(default, help: str, *, choices: Optional[Tuple[str, ...]] = None, flag: Optional[str] = None,
-            parse: Optional[Callable[[Any], Any]] = None):
-    """A config field: its default, its help text and optional choices, flag name or parser."""
-    meta = dict(help=help, choices=choices, flag=flag, parse=parse)
+            parse: Optional[Callable[[Any], Any]] = None, within: Optional[str] = None, length=None):
+    """A config field: its default, its help text, and optionally its choices, its range
+    ``within`` (of the number, or of each item of a tuple), the ``length`` of a tuple
+    (a count, or (fewest, most) with None for no bound), a flag name or a parser."""
+    meta = dict(help=help, choices=choices, flag=flag, parse=parse,
+                within=Interval.parse(within) if within else None, length=length)
     return field(default=default, metadata=meta)
 
 
-def require_positive(cfg, *names: str) -> None:
-    """One-line ValueError unless each named setting of ``cfg`` is a finite number > 0
-    (for ``check()`` methods)."""
-    for name in names:
-        v = getattr(cfg, name)
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise ValueError(f"{name} must be > 0, got {v}")
+def check_value(key: str, meta, value) -> None:
+    """One-line ValueError unless ``value`` meets the constraints declared in ``meta``."""
+    if value is None:  # Optional settings: None is their "not given"
+        return
+    choices, within, length = meta.get("choices"), meta.get("within"), meta.get("length")
+    if choices and value not in choices:
+        raise ValueError(f"{key} must be one of {list(choices)}, got {value!r}")
+    items = list(value) if isinstance(value, (tuple, list)) else None
+    if length is not None and items is not None:
+        fewest, most = (length, length) if isinstance(length, int) else length
+        if len(items) < fewest or (most is not None and len(items) > most):
+            count = (f"{fewest}" if fewest == most else f"at least {fewest}" if most is None
+                     else f"{fewest} to {most}")
+            raise ValueError(f"{key} needs {count} values, got {items}")
+    if within is not None and not all(v in within for v in (items if items is not None else [value])):
+        raise ValueError(f"{key} must {'each ' if items is not None else ''}be {within}, got "
+                         f"{items if items is not None else value}")
+
+
+def check_config(cfg):
+    """``cfg`` with every declared constraint checked (nested configs too), then its class's
+    ``cross_check()`` if it has one; a one-line ValueError for the first that fails."""
+    for f in fields(cfg):
+        value = getattr(cfg, f.name)
+        if is_dataclass(value):
+            check_config(value)
+        else:
+            check_value(f.metadata.get("flag") or f.name, f.metadata, value)
+    cross = getattr(cfg, "cross_check", None)
+    if cross is not None:
+        cross()
+    return cfg
 
 
 def nested(cls):
@@ -136,8 +209,6 @@ def parse_value(leaf: Leaf, value):
     if tp is str:
         if not isinstance(value, str):
             raise ValueError(f"{name} must be text, got {value!r}")
-        if leaf.choices and value not in leaf.choices:
-            raise ValueError(f"{name} must be one of {list(leaf.choices)}, got {value!r}")
         return value
     if origin in (tuple, list) and args:
         inner = args[0]
@@ -181,9 +252,12 @@ def to_dict(cfg) -> dict:
 
 def from_dict(cls, d: dict):
     """Config ``cls`` from a nested dict (as ``to_dict`` writes it); missing fields take
-    their defaults, unknown ones raise ValueError, values are parsed and type-checked."""
+    their defaults, unknown ones raise ValueError, values are parsed, type-checked and
+    checked against their constraints (``check_config``)."""
     if not isinstance(d, dict):
         raise ValueError(f"{cls.__name__} settings must be a mapping, got {type(d).__name__}")
+    if hasattr(cls, "upgrade"):  # the class brings a dict recorded in an older layout up to date
+        d = cls.upgrade(d)
     hints = typing.get_type_hints(cls)
     names = {f.name: f for f in fields(cls)}
     unknown = sorted(set(d) - set(names))
@@ -197,7 +271,7 @@ def from_dict(cls, d: dict):
         else:
             f = names[name]
             kw[name] = parse_value(Leaf(f.metadata.get("flag") or name, (name,), tp, f), value)
-    return cls(**kw)
+    return check_config(cls(**kw))
 
 
 def describe_default(leaf: Leaf) -> str:

@@ -38,7 +38,7 @@ from tensordict import TensorDict
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import GymEnv
 
-from trl_dgpq.config import setting
+from trl_dgpq.config import check_config, setting
 
 from ..base import SeedBatchedEnv
 # envs whose whole state is plain Python attributes, so a pickle of them is exact
@@ -57,22 +57,20 @@ BOUNDS = {
 @dataclass
 class GymConfig:
     """A gymnasium env with discrete actions (--env gym:ID)."""
-    max_steps: int = setting(0, "step cap per episode (0: the env's registered max_episode_steps)")
+    max_steps: int = setting(0, "step cap per episode (0: the env's registered max_episode_steps)",
+                             within="[0, inf)")
     obs_low: Tuple[float, ...] = setting((), "lower observation bounds mapped to 0 (empty: documented or "
                                              "gymnasium's)")
     obs_high: Tuple[float, ...] = setting((), "upper observation bounds mapped to 1 (empty: documented or "
                                               "gymnasium's)")
 
-    def check(self) -> "GymConfig":
-        if self.max_steps < 0:
-            raise ValueError(f"max_steps must be >= 0 (0: gymnasium's), got {self.max_steps}")
+    def cross_check(self) -> None:
         if len(self.obs_low) != len(self.obs_high):
             raise ValueError(f"obs_low and obs_high need one bound per dimension each, got {len(self.obs_low)} "
                              f"and {len(self.obs_high)}")
         if self.obs_low and not all(math.isfinite(lo) and math.isfinite(hi) and lo < hi
                                     for lo, hi in zip(self.obs_low, self.obs_high)):
             raise ValueError(f"need finite obs_low < obs_high, got {list(self.obs_low)} and {list(self.obs_high)}")
-        return self
 
 
 @functools.cache
@@ -116,7 +114,7 @@ class GymSeedEnv(SeedBatchedEnv):
     @classmethod
     def checked_config(cls, cfg: GymConfig) -> GymConfig:
         """Checked, with max_steps filled from gymnasium's registration when 0."""
-        cfg.check()
+        check_config(cfg)
         _, low, _, registered = describe(cls.gym_id)
         if not cfg.max_steps:
             if not registered:

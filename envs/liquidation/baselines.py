@@ -20,9 +20,6 @@ from .almgren_chriss import ACModel
 class ScheduleConfig:
     """A fixed liquidation schedule (no settings)."""
 
-    def check(self) -> "ScheduleConfig":
-        return self
-
 
 class SchedulePolicy(ScriptedAgent):
     """Sells ``fractions[k]`` of the remaining shares at trade k + 1 (a tensor (N,))."""
@@ -37,11 +34,10 @@ class SchedulePolicy(ScriptedAgent):
     def resolve_config(cls, cfg, info):
         if info.config.action_levels:
             raise ValueError(f"{cls.name} sells exact fractions: set action_levels=0 (continuous actions)")
-        return cfg.check()
+        return cfg
 
     @classmethod
     def make(cls, cfg, info, seeds):
-        cls.resolve_config(cfg, info)
         return cls(cls.schedule(ACModel.from_config(info.config)), info.config.trades)
 
     @staticmethod

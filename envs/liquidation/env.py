@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import torch
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
-from trl_dgpq.config import require_positive, setting
+from trl_dgpq.config import setting
 from trl_dgpq.rng import box_muller
 
 from ..base import SeedBatchedEnv
@@ -57,40 +57,35 @@ class LiquidationConfig:
     """Almgren-Chriss liquidation (SPEC 3.2; defaults: the course environment)."""
     reward: str = setting("shortfall", "shortfall: minus each trade's risk-adjusted cost / reward_scale; "
                                        "utility-ratio: the seed report's", choices=REWARDS)
-    reward_scale: float = setting(1e6, "dollars per unit of the shortfall reward")
-    shares: int = setting(1_000_000, "shares to sell, X")
-    start_price: float = setting(50.0, "S_0, dollars")
-    annual_volatility: float = setting(0.12, "annual volatility of the price")
-    trading_days: float = setting(250.0, "trading days per year")
-    spread: float = setting(0.125, "bid-ask spread, dollars (fixed cost eps = spread / 2)")
+    reward_scale: float = setting(1e6, "dollars per unit of the shortfall reward", within="(0, inf)")
+    shares: int = setting(1_000_000, "shares to sell, X", within="(0, inf)")
+    start_price: float = setting(50.0, "S_0, dollars", within="(0, inf)")
+    annual_volatility: float = setting(0.12, "annual volatility of the price", within="(0, inf)")
+    trading_days: float = setting(250.0, "trading days per year", within="(0, inf)")
+    spread: float = setting(0.125, "bid-ask spread, dollars (fixed cost eps = spread / 2)", within="(0, inf)")
     daily_volume: float = setting(5e6, "daily volume, shares (eta = spread / (0.01 volume), "
-                                       "gamma = spread / (0.1 volume))")
-    horizon: float = setting(60.0, "liquidation time T, days")
-    trades: int = setting(60, "number of trades N (the episode's length at most)")
-    lam: float = setting(1e-6, "risk aversion lambda")
+                                       "gamma = spread / (0.1 volume))", within="(0, inf)")
+    horizon: float = setting(60.0, "liquidation time T, days", within="(0, inf)")
+    trades: int = setting(60, "number of trades N (the episode's length at most)", within="(0, inf)")
+    lam: float = setting(1e-6, "risk aversion lambda", within="[0, inf)")
     price_noise: bool = setting(True, "random price moves (off: the price moves only by impact; "
                                       "sigma still sets kappa and the risk term)")
-    action_levels: int = setting(0, "0: continuous sell fraction in [0, 1]; n >= 2: n levels 0, 1/(n-1), .., 1")
-    level_noise: float = setting(0.0, "sigma of OU noise on the chosen level's fraction (0: none)")
-    level_noise_theta: float = setting(0.15, "theta of that OU noise")
+    action_levels: int = setting(0, "0: continuous sell fraction in [0, 1]; n >= 2: n levels 0, 1/(n-1), .., 1",
+                                 within="[0, inf)")
+    level_noise: float = setting(0.0, "sigma of OU noise on the chosen level's fraction (0: none)",
+                                 within="[0, inf)")
+    level_noise_theta: float = setting(0.15, "theta of that OU noise", within="[0, inf)")
 
     @property
     def max_steps(self) -> int:
         return self.trades
 
-    def check(self) -> "LiquidationConfig":
-        require_positive(self, "reward_scale", "shares", "start_price", "annual_volatility", "trading_days",
-                         "daily_volume", "horizon", "trades", "spread")
-        for name in ("lam", "level_noise", "level_noise_theta"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be >= 0, got {v}")
-        if self.action_levels == 1 or self.action_levels < 0:
+    def cross_check(self) -> None:
+        if self.action_levels == 1:
             raise ValueError(f"action_levels must be 0 (continuous) or >= 2, got {self.action_levels}")
         if self.level_noise > 0 and self.action_levels == 0:
             raise ValueError("level_noise applies to discrete levels: set action_levels >= 2")
         ACModel.from_config(self).kappa  # eta~ > 0
-        return self
 
 
 class LiquidationEnv(SeedBatchedEnv):

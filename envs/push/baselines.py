@@ -27,12 +27,8 @@ CONTACT = PUSHER_HALF + BLOCK_HALF  # centre distance at which pusher and block 
 class OracleConfig:
     """The scripted pusher."""
     align_tol: float = setting(0.055, "lined up when the pusher's centre is within this of the block's line "
-                                      "(at least half a move, or sliding onto the line can overshoot forever)")
-
-    def check(self) -> "OracleConfig":
-        if not (0 < self.align_tol < CONTACT):
-            raise ValueError(f"align_tol must be in (0, {CONTACT}), got {self.align_tol}")
-        return self
+                                      "(at least half a move, or sliding onto the line can overshoot forever)",
+                               within=f"(0, {CONTACT})")
 
 
 class OraclePusher(ScriptedAgent):
@@ -44,7 +40,6 @@ class OraclePusher(ScriptedAgent):
 
     @classmethod
     def resolve_config(cls, cfg, info):
-        cfg.check()
         push = info.config
         move = push.step_size
         # A push moves the block about a move: to land within tol of the goal on each axis,
@@ -60,7 +55,6 @@ class OraclePusher(ScriptedAgent):
 
     @classmethod
     def make(cls, cfg, info, seeds):
-        cls.resolve_config(cfg, info)
         index = lambda *names: torch.tensor([info.action_index(n) for n in names])  # noqa: E731
         return cls(cfg, torch.tensor(info.config.goal, dtype=torch.float64), info.config.goal_radius / 2 ** 0.5,
                    plus=index("east", "north"), minus=index("west", "south"))

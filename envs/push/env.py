@@ -42,7 +42,7 @@ from typing import Tuple
 import torch
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
-from trl_dgpq.config import require_positive, setting
+from trl_dgpq.config import setting
 
 from ..base import SeedBatchedEnv
 
@@ -87,6 +87,9 @@ OBS_LOW = (-WORKSPACE[0], -WORKSPACE[1], PUSHER_Z - 0.05, -TABLE_HALF[0] - 0.5, 
 OBS_HIGH = (WORKSPACE[0], WORKSPACE[1], PUSHER_Z + 0.05, TABLE_HALF[0] + 0.5, TABLE_HALF[1] + 0.5, 1.0)
 
 
+XY = "(-inf, inf)"  # finite coordinates
+
+
 def _on_table(xy, margin: float = 0.0) -> bool:
     return abs(xy[0]) <= TABLE_HALF[0] - margin and abs(xy[1]) <= TABLE_HALF[1] - margin
 
@@ -94,31 +97,30 @@ def _on_table(xy, margin: float = 0.0) -> bool:
 @dataclass
 class PushConfig:
     """Block pushing in pybullet (SPEC 3.3)."""
-    max_steps: int = setting(50, "step cap per episode (truncation, not termination)")
-    step_size: float = setting(0.1, "length of a pusher move, metres")
-    noise: float = setting(0.01, "uniform noise on the moved axis, in [-noise, noise] metres")
-    goal: Tuple[float, ...] = setting((0.55, 0.0), "goal x,y on the table (the far end)")
-    goal_radius: float = setting(0.1, "terminated (success) with the block within this distance of the goal")
-    block_start: Tuple[float, ...] = setting((-0.45, 0.0), "block's start x,y")
-    pusher_start: Tuple[float, ...] = setting((-0.55, 0.0), "pusher's start x,y (behind the block)")
-    substeps: int = setting(24, "physics steps per action in which the pusher's target moves")
+    max_steps: int = setting(50, "step cap per episode (truncation, not termination)", within="(0, inf)")
+    step_size: float = setting(0.1, "length of a pusher move, metres", within="(0, inf)")
+    noise: float = setting(0.01, "uniform noise on the moved axis, in [-noise, noise] metres (< step_size)",
+                           within="[0, inf)")
+    goal: Tuple[float, ...] = setting((0.55, 0.0), "goal x,y on the table (the far end)", within=XY, length=2)
+    goal_radius: float = setting(0.1, "terminated (success) with the block within this distance of the goal",
+                                 within="(0, inf)")
+    block_start: Tuple[float, ...] = setting((-0.45, 0.0), "block's start x,y", within=XY, length=2)
+    pusher_start: Tuple[float, ...] = setting((-0.55, 0.0), "pusher's start x,y (behind the block)", within=XY,
+                                              length=2)
+    substeps: int = setting(24, "physics steps per action in which the pusher's target moves", within="(0, inf)")
     settle_substeps: int = setting(8, "physics steps after them with the target still, so the pusher "
-                                      "reaches it and the block stops: the observation is a state at rest")
-    time_step: float = setting(1.0 / 120.0, "physics time step, seconds (24 x 1/120: 0.2 s, 0.5 m/s a move)")
-    solver_iterations: int = setting(20, "Bullet's constraint-solver iterations per physics step")
-    push_force: float = setting(50.0, "largest force of the constraint holding the pusher, newtons")
+                                      "reaches it and the block stops: the observation is a state at rest",
+                                   within="[0, inf)")
+    time_step: float = setting(1.0 / 120.0, "physics time step, seconds (24 x 1/120: 0.2 s, 0.5 m/s a move)",
+                               within="(0, inf)")
+    solver_iterations: int = setting(20, "Bullet's constraint-solver iterations per physics step",
+                                     within="(0, inf)")
+    push_force: float = setting(50.0, "largest force of the constraint holding the pusher, newtons",
+                                within="(0, inf)")
 
-    def check(self) -> "PushConfig":
-        require_positive(self, "max_steps", "step_size", "goal_radius", "substeps", "time_step", "solver_iterations",
-                         "push_force")
-        if not (isinstance(self.settle_substeps, int) and self.settle_substeps >= 0):
-            raise ValueError(f"settle_substeps must be an integer >= 0, got {self.settle_substeps}")
-        if not (math.isfinite(self.noise) and 0 <= self.noise < self.step_size):
+    def cross_check(self) -> None:
+        if self.noise >= self.step_size:
             raise ValueError(f"noise must be in [0, step_size), got {self.noise}")
-        for name in ("goal", "block_start", "pusher_start"):
-            xy = getattr(self, name)
-            if len(xy) != 2 or not all(math.isfinite(v) for v in xy):
-                raise ValueError(f"{name} must be two numbers x,y, got {xy}")
         for name in ("goal", "block_start"):
             if not _on_table(getattr(self, name), BLOCK_HALF):
                 raise ValueError(f"{name} {getattr(self, name)} is not on the table "
@@ -131,7 +133,6 @@ class PushConfig:
             raise ValueError(f"pusher_start {self.pusher_start} overlaps the block at {self.block_start}")
         if math.dist(self.block_start, self.goal) <= self.goal_radius:
             raise ValueError("block_start is already at the goal")
-        return self
 
 
 class _World:

@@ -13,7 +13,6 @@ reward (its own stream, so the moves are the same with and without it): the
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Tuple
 
@@ -34,27 +33,14 @@ class SquareConfig:
     """The 2-D square (SPEC 3.1)."""
     reward: str = setting("shaped", "shaped: 2 - |goal - s|_2 per step; paper: -1 per step, 0 at the goal",
                           choices=REWARDS)
-    max_steps: int = setting(200, "step cap per episode (truncation, not termination)")
-    step_size: float = setting(0.1, "length of a move")
-    noise: float = setting(0.01, "uniform noise on the moved axis, in [-noise, noise]")
-    goal: Tuple[float, ...] = setting((1.0, 1.0), "goal position, e.g. 1,1")
-    goal_radius: float = setting(0.15, "episode ends (terminated) within this Euclidean distance of the goal")
-    reward_noise: float = setting(0.0, "standard deviation of Gaussian noise added to every reward")
-
-    def check(self) -> "SquareConfig":
-        if self.max_steps < 1:
-            raise ValueError(f"max_steps must be a positive integer, got {self.max_steps}")
-        if not (math.isfinite(self.step_size) and self.step_size > 0):
-            raise ValueError(f"step_size must be > 0, got {self.step_size}")
-        if not (math.isfinite(self.noise) and self.noise >= 0):
-            raise ValueError(f"noise must be >= 0, got {self.noise}")
-        if not (math.isfinite(self.reward_noise) and self.reward_noise >= 0):
-            raise ValueError(f"reward_noise must be >= 0, got {self.reward_noise}")
-        if not (math.isfinite(self.goal_radius) and self.goal_radius > 0):
-            raise ValueError(f"goal_radius must be > 0, got {self.goal_radius}")
-        if len(self.goal) != 2 or not all(0 <= g <= 1 for g in self.goal):
-            raise ValueError(f"goal must be two numbers in [0, 1], got {self.goal}")
-        return self
+    max_steps: int = setting(200, "step cap per episode (truncation, not termination)", within="[1, inf)")
+    step_size: float = setting(0.1, "length of a move", within="(0, inf)")
+    noise: float = setting(0.01, "uniform noise on the moved axis, in [-noise, noise]", within="[0, inf)")
+    goal: Tuple[float, ...] = setting((1.0, 1.0), "goal position, e.g. 1,1", within="[0, 1]", length=2)
+    goal_radius: float = setting(0.15, "episode ends (terminated) within this Euclidean distance of the goal",
+                                 within="(0, inf)")
+    reward_noise: float = setting(0.0, "standard deviation of Gaussian noise added to every reward",
+                                  within="[0, inf)")
 
 
 class SquareEnv(SeedBatchedEnv):

@@ -24,40 +24,30 @@ from torchrl.data import Bounded, LazyTensorStorage, ReplayBuffer
 from torchrl.modules import MLP, OrnsteinUhlenbeckProcessModule, TanhModule, ValueOperator
 from torchrl.objectives import DDPGLoss, SoftUpdate
 
-from ..config import require_positive, setting
+from ..config import setting
 from .neural import PerSeedLearners, TorchLearner
 
 
 @dataclass
 class DDPGConfig:
     """DDPG (SPEC 3.2: the course's sizes and hyperparameters)."""
-    gamma: float = setting(0.99, "discount gamma")
-    actor_hidden: Tuple[int, ...] = setting((24, 48), "actor hidden widths (ReLU), then tanh onto the action box")
-    critic_hidden: Tuple[int, int] = setting((24, 48), "critic: state -> first width, concat action -> second -> 1")
-    actor_lr: float = setting(1e-4, "actor Adam learning rate")
-    critic_lr: float = setting(1e-3, "critic Adam learning rate")
-    target_update: float = setting(1e-3, "soft target update weight tau")
-    buffer_size: int = setting(10_000, "replay buffer capacity (transitions per seed)")
-    batch_size: int = setting(128, "minibatch; learning starts once the buffer holds this many")
-    ou_theta: float = setting(0.15, "OU exploration noise theta")
-    ou_sigma: float = setting(0.2, "OU exploration noise sigma")
-    ou_dt: float = setting(1.0, "OU time step (1: x += theta (mu - x) + sigma N(0, 1))")
+    gamma: float = setting(0.99, "discount gamma", within="[0, 1]")
+    actor_hidden: Tuple[int, ...] = setting((24, 48), "actor hidden widths (ReLU), then tanh onto the action box",
+                                            within="[1, inf)", length=(1, None))
+    critic_hidden: Tuple[int, int] = setting((24, 48), "critic: state -> first width, concat action -> second -> 1",
+                                             within="[1, inf)", length=2)
+    actor_lr: float = setting(1e-4, "actor Adam learning rate", within="(0, inf)")
+    critic_lr: float = setting(1e-3, "critic Adam learning rate", within="(0, inf)")
+    target_update: float = setting(1e-3, "soft target update weight tau", within="(0, 1]")
+    buffer_size: int = setting(10_000, "replay buffer capacity (transitions per seed)", within="[1, inf)")
+    batch_size: int = setting(128, "minibatch; learning starts once the buffer holds this many", within="[1, inf)")
+    ou_theta: float = setting(0.15, "OU exploration noise theta", within="[0, inf)")
+    ou_sigma: float = setting(0.2, "OU exploration noise sigma", within="[0, inf)")
+    ou_dt: float = setting(1.0, "OU time step (1: x += theta (mu - x) + sigma N(0, 1))", within="(0, inf)")
 
-    def check(self) -> "DDPGConfig":
-        if not (0 <= self.gamma <= 1):
-            raise ValueError(f"gamma must be in [0, 1], got {self.gamma}")
-        if not self.actor_hidden or min(self.actor_hidden) < 1:
-            raise ValueError(f"actor_hidden must be positive widths, got {list(self.actor_hidden)}")
-        if len(self.critic_hidden) != 2 or min(self.critic_hidden) < 1:
-            raise ValueError(f"critic_hidden must be two positive widths, got {list(self.critic_hidden)}")
-        require_positive(self, "actor_lr", "critic_lr", "target_update", "ou_dt")
-        if self.target_update > 1:
-            raise ValueError(f"target_update must be in (0, 1], got {self.target_update}")
-        if self.buffer_size < self.batch_size or self.batch_size < 1:
+    def cross_check(self) -> None:
+        if self.buffer_size < self.batch_size:
             raise ValueError(f"need 1 <= batch_size <= buffer_size, got {self.batch_size} and {self.buffer_size}")
-        if self.ou_theta < 0 or self.ou_sigma < 0:
-            raise ValueError("ou_theta and ou_sigma must be >= 0")
-        return self
 
 
 class Critic(nn.Module):
@@ -148,11 +138,11 @@ class DDPG(PerSeedLearners):
     @classmethod
     def resolve_config(cls, cfg: DDPGConfig, info) -> DDPGConfig:
         info.action_box("ddpg")
-        return cfg.check()
+        return cfg
 
     @classmethod
     def make(cls, cfg: DDPGConfig, info, seeds):
-        return cls(cfg.check(), seeds, info.observation_dim, info.action_box("ddpg"))
+        return cls(cfg, seeds, info.observation_dim, info.action_box("ddpg"))
 
     @staticmethod
     def memory_bytes(cfg: DDPGConfig, info, num_seeds: int) -> int:

@@ -26,43 +26,36 @@ from torchrl.data import Categorical, LazyTensorStorage, ReplayBuffer
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate
 
-from ..config import require_positive, setting
+from ..config import setting
 from .neural import PerSeedLearners, TorchLearner
 
 
 @dataclass
 class DQNConfig:
     """DQN (defaults: rl-baselines3-zoo's tuned Acrobot-v1 settings; presets per env)."""
-    gamma: float = setting(0.99, "discount gamma")
-    hidden: Tuple[int, ...] = setting((256, 256), "Q-network hidden widths (ReLU)")
-    lr: float = setting(6.3e-4, "Adam learning rate")
-    buffer_size: int = setting(50_000, "replay buffer capacity (transitions per seed)")
-    batch_size: int = setting(128, "minibatch size")
-    learning_starts: int = setting(0, "env steps before the first update (and at least a minibatch stored)")
-    train_freq: int = setting(4, "update every this many env steps")
-    gradient_steps: int = setting(4, "updates each time")
-    target_update_interval: int = setting(250, "env steps between copies of the online network to the target")
-    eps_init: float = setting(1.0, "initial exploration epsilon")
-    eps_end: float = setting(0.1, "final exploration epsilon")
-    exploration_steps: int = setting(12_000, "env steps over which epsilon falls linearly to eps_end")
-    max_grad_norm: float = setting(10.0, "gradient norm clip")
+    gamma: float = setting(0.99, "discount gamma", within="[0, 1]")
+    hidden: Tuple[int, ...] = setting((256, 256), "Q-network hidden widths (ReLU)", within="[1, inf)",
+                                      length=(1, None))
+    lr: float = setting(6.3e-4, "Adam learning rate", within="(0, inf)")
+    buffer_size: int = setting(50_000, "replay buffer capacity (transitions per seed)", within="[1, inf)")
+    batch_size: int = setting(128, "minibatch size", within="[1, inf)")
+    learning_starts: int = setting(0, "env steps before the first update (and at least a minibatch stored)",
+                                   within="[0, inf)")
+    train_freq: int = setting(4, "update every this many env steps", within="[1, inf)")
+    gradient_steps: int = setting(4, "updates each time", within="[1, inf)")
+    target_update_interval: int = setting(250, "env steps between copies of the online network to the target",
+                                          within="[1, inf)")
+    eps_init: float = setting(1.0, "initial exploration epsilon", within="[0, 1]")
+    eps_end: float = setting(0.1, "final exploration epsilon", within="[0, 1]")
+    exploration_steps: int = setting(12_000, "env steps over which epsilon falls linearly to eps_end",
+                                     within="[1, inf)")
+    max_grad_norm: float = setting(10.0, "gradient norm clip", within="(0, inf)")
 
-    def check(self) -> "DQNConfig":
-        if not (0 <= self.gamma <= 1):
-            raise ValueError(f"gamma must be in [0, 1], got {self.gamma}")
-        if not self.hidden or min(self.hidden) < 1:
-            raise ValueError(f"hidden must be positive widths, got {list(self.hidden)}")
-        require_positive(self, "lr", "max_grad_norm")
-        if self.batch_size < 1 or self.buffer_size < self.batch_size:
+    def cross_check(self) -> None:
+        if self.buffer_size < self.batch_size:
             raise ValueError(f"need 1 <= batch_size <= buffer_size, got {self.batch_size} and {self.buffer_size}")
-        for name in ("train_freq", "gradient_steps", "target_update_interval", "exploration_steps"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.learning_starts < 0:
-            raise ValueError(f"learning_starts must be >= 0, got {self.learning_starts}")
-        if not (0 <= self.eps_end <= self.eps_init <= 1):
+        if self.eps_end > self.eps_init:
             raise ValueError(f"need 0 <= eps_end <= eps_init <= 1, got {self.eps_end} and {self.eps_init}")
-        return self
 
 
 class Learner(TorchLearner):
@@ -135,11 +128,11 @@ class DQN(PerSeedLearners):
     @classmethod
     def resolve_config(cls, cfg: DQNConfig, info) -> DQNConfig:
         info.num_actions("dqn")
-        return cfg.check()
+        return cfg
 
     @classmethod
     def make(cls, cfg: DQNConfig, info, seeds):
-        return cls(cfg.check(), seeds, info.observation_dim, info.num_actions("dqn"))
+        return cls(cfg, seeds, info.observation_dim, info.num_actions("dqn"))
 
     @staticmethod
     def memory_bytes(cfg: DQNConfig, info, num_seeds: int) -> int:

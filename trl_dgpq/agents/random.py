@@ -14,9 +14,6 @@ from ..rng import POLICY_STREAM, SeedStreams
 class RandomConfig:
     """Uniformly random actions (no settings)."""
 
-    def check(self) -> "RandomConfig":
-        return self
-
 
 class RandomAgent:
     Config = RandomConfig
@@ -28,7 +25,7 @@ class RandomAgent:
     @classmethod
     def resolve_config(cls, cfg, info):
         info.num_actions("random")
-        return cfg.check()
+        return cfg
 
     @classmethod
     def make(cls, cfg, info, seeds):
