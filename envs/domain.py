@@ -25,10 +25,13 @@ class Domain:
 
     takes_id = False  # env names are "<domain>:<id>"
 
-    def __init__(self, package: str, baselines: Optional[Dict[str, str]] = None):
+    def __init__(self, package: str, baselines: Optional[Dict[str, str]] = None, example: Optional[dict] = None):
         self.package = package
         self.name = package.rsplit(".", 1)[-1]
         self.baseline_paths = dict(baselines or {})  # agent name -> "module:Class", module relative to the package
+        # env settings of a small, quick instance of the first of examples(): the contract tests
+        # (tests/test_domains.py) run every domain with it, and fail for a domain without one
+        self.example = example
 
     def module(self, part: str, optional: bool = False) -> Optional[ModuleType]:
         """``envs/<name>/<part>.py``, imported on first use (None if optional and absent)."""

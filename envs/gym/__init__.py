@@ -32,4 +32,4 @@ class GymDomain(Domain):
         return self.analysis().THRESHOLDS.get(env_id)
 
 
-DOMAIN = GymDomain(__name__)
+DOMAIN = GymDomain(__name__, example=dict(max_steps=12))

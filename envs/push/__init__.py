@@ -2,4 +2,4 @@
 pybullet is imported when the first world is built, not with the domain."""
 from ..domain import Domain
 
-DOMAIN = Domain(__name__, baselines={"oracle": "baselines:OraclePusher"})
+DOMAIN = Domain(__name__, baselines={"oracle": "baselines:OraclePusher"}, example=dict(max_steps=4, substeps=6))
