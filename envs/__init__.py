@@ -17,6 +17,7 @@ DOMAINS = {
     "liquidation": "trl_dgpq.envs.liquidation",
     "push": "trl_dgpq.envs.push",
     "gym": "trl_dgpq.envs.gym",
+    "corridor": "trl_dgpq.envs.corridor",
 }
 
 
