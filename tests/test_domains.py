@@ -163,3 +163,22 @@ def test_importing_the_core_imports_no_simulator():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split("\n")[:4] == ["False False", "False", "False", "True (6,)"]
+
+
+def test_the_worked_examples_corridor_and_constant():
+    """README's worked examples. Without slip, always "right" takes length - 1 steps, by hand;
+    with slip 0.25 a step advances 1 - 2 (0.25) = 0.5 cells on average: about 2 (length - 1).
+    The constant agent finds its action by the env's name for it, and refuses what it cannot do."""
+    from trl_dgpq.collectors.experiment import resolve_config, run_experiment
+    df = run_experiment(resolve_config(env="corridor", agent="constant", length=6, slip=0.0, seeds=[0, 1],
+                                       episodes=3), progress=False)
+    assert (df.steps == 5).all() and df.terminated.all() and (df["return"] == -4).all()
+    df = run_experiment(resolve_config(env="corridor", agent="constant", length=11, slip=0.25, max_steps=200,
+                                       seeds=list(range(8)), episodes=10), progress=False)
+    assert 16 < df.steps.mean() < 24
+    with pytest.raises(ValueError, match="no action 'up'"):
+        resolve_config(env="corridor", agent="constant", action="up")
+    with pytest.raises(ValueError, match="not among this env's 2 actions"):
+        resolve_config(env="corridor", agent="constant", action="2")
+    with pytest.raises(ValueError, match="constant needs discrete actions"):
+        resolve_config(env="liquidation", agent="constant")

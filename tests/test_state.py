@@ -9,6 +9,7 @@ import torch
 from tensordict import TensorDictBase
 
 from trl_dgpq.agents import agent_names
+from trl_dgpq.envs import domains
 from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS, build, resolve_config
 from trl_dgpq.collectors.online import OnlineCollector
@@ -149,6 +150,19 @@ AGENT_CASES = {
     # the noisy square: its reward-noise stream saved with the env
     "dgpq-noisy": dict(agent="dgpq", preset="noisy", max_steps=40),
 }
+
+
+def supported_case(agent):
+    """An agent without a case above runs on the example of the first domain with presets for it."""
+    for d in domains():
+        for env, name, _ in d.preset_tables():
+            if name == agent:
+                return dict(env=env, agent=agent, **d.example)
+    return None
+
+
+AGENT_CASES.update({f"{a}-example": supported_case(a) for a in agent_names()
+                    if a not in {c["agent"] for c in AGENT_CASES.values()} and supported_case(a)})
 
 
 def test_every_agent_has_a_resume_case():

@@ -13,6 +13,7 @@ AGENTS = {
     "random": "trl_dgpq.agents.random:RandomAgent",
     "ddpg": "trl_dgpq.agents.ddpg:DDPG",
     "dqn": "trl_dgpq.agents.dqn:DQN",
+    "constant": "trl_dgpq.agents.constant:ConstantAgent",
 }
 
 
