@@ -246,7 +246,7 @@ def bench_push(args):
     Repeated ``--repeats`` times; the figure is the repeat with the least wall time."""
     import os
 
-    from trl_dgpq.envs import push as push_module
+    from trl_dgpq.envs.push import env as push_module
     from trl_dgpq.collectors.experiment import build, resolve_config
     from trl_dgpq.collectors.online import OnlineCollector
 
@@ -324,6 +324,61 @@ def bench_qhat(args):
     print(f"wrote {out}")
 
 
+IMPORTS = ("trl_dgpq", "trl_dgpq.dgpq", "trl_dgpq.collectors.experiment")
+COUNT_WORLDS = """
+import runpy, sys, tempfile, pybullet
+connects = [0]
+connect = pybullet.connect
+def counted(*a, **k):
+    connects[0] += 1
+    return connect(*a, **k)
+pybullet.connect = counted
+main = runpy.run_path(sys.argv[1] + "/scripts/train.py", run_name="bench")["main"]
+out = tempfile.mkdtemp()
+main(["--env", "push", "--agent", "dgpq", "--seeds", "1", "--episodes", "1", "--max-steps", "1", "--no-progress",
+      "--out", out + "/run"])
+print("WORLDS", connects[0])
+"""
+
+
+def bench_imports(args):
+    """Import time of the core (median and least of ``--repeats`` fresh interpreters, from
+    ``python -X importtime``: the module's cumulative microseconds), whether it imports a
+    simulator, and how many pybullet worlds ``train.py --env push`` builds for a one-seed
+    run. ``--checkout DIR`` times another checkout (on PYTHONPATH, before this one)."""
+    import os
+    import subprocess
+    import sys
+
+    root = Path(args.checkout or Path(__file__).resolve().parent.parent).resolve()
+    env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    py = [sys.executable]
+    results = dict(checkout=str(root), load_average_start=os.getloadavg(), modules={})
+    for module in IMPORTS:
+        times = []
+        for _ in range(args.repeats):
+            err = subprocess.run(py + ["-X", "importtime", "-c", f"import {module}"], env=env, cwd=root,
+                                 capture_output=True, text=True, check=True).stderr
+            times.append(int(next(line for line in reversed(err.splitlines())
+                                  if line.rstrip().endswith("| " + module)).split("|")[1]))
+        heavy = subprocess.run(py + ["-c", f"import sys, {module}; print('pybullet' in sys.modules, "
+                                           "'gymnasium' in sys.modules)"],
+                               env=env, cwd=root, capture_output=True, text=True, check=True).stdout.split()
+        results["modules"][module] = dict(us=times, median_ms=float(np.median(times)) / 1e3,
+                                          least_ms=min(times) / 1e3, pybullet=heavy[0] == "True",
+                                          gymnasium=heavy[1] == "True")
+        print(f"import {module:<32} median {np.median(times) / 1e3:7.0f} ms, least {min(times) / 1e3:7.0f} ms; "
+              f"pybullet {heavy[0]}, gymnasium {heavy[1]}", flush=True)
+    out = subprocess.run(py + ["-c", COUNT_WORLDS, str(root)], env=env, cwd=root, capture_output=True, text=True,
+                         check=True)
+    worlds = int(next(line.split()[1] for line in out.stdout.splitlines() if line.startswith("WORLDS")))
+    results.update(push_worlds_for_one_seed=worlds, load_average_end=os.getloadavg())
+    print(f"train.py --env push, 1 seed: {worlds} pybullet worlds built (1 is the run's own)")
+    path = Path(args.out or "bench-imports.json")
+    path.write_text(json.dumps(results, indent=1))
+    print(f"wrote {path}")
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="what", required=True)
@@ -362,6 +417,11 @@ def main(argv=None):
     q.add_argument("--repeats", type=int, default=5)
     q.add_argument("--out", default=None)
     q.set_defaults(fn=bench_qhat)
+    m = sub.add_parser("imports", help="import time of the core; simulators imported; push worlds per run")
+    m.add_argument("--repeats", type=int, default=7)
+    m.add_argument("--checkout", default=None, help="another checkout to time (default: this one)")
+    m.add_argument("--out", default=None)
+    m.set_defaults(fn=bench_imports)
     args = p.parse_args(argv)
     if args.what == "dgpq" and args.quick:
         args.steps, args.repeats, args.backends = min(args.steps, 2000), min(args.repeats, 2), ["sparse"]
