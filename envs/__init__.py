@@ -66,4 +66,5 @@ def make_env(name: str, cfg, seeds, device="cpu"):
     return env_class(name)(seeds, cfg, device=device)
 
 
-__all__ = ["DOMAINS", "Domain", "domain", "domains", "split_name", "env_class", "check_env_name", "env_configs", "make_env"]
+__all__ = ["DOMAINS", "Domain", "domain", "domains", "split_name", "env_class", "check_env_name", "env_configs",
+           "make_env"]

@@ -1,12 +1,14 @@
 """A scripted pusher for the block-pushing env (``oracle``): the reference line of
 the push experiments and a proof that the task can be solved.
 
-Per seed, from the pusher and block positions alone (``pusher``, ``block`` by key; moves by action name): push the block along x until it is within
-goal_radius / sqrt(2) of the goal's x, then along y (a fixed order: choosing the
-farther axis each step thrashes on diagonals, each switch costing a detour). If the pusher is behind the block on that axis (on
-the side away from the goal) and lined up with it, move toward the goal; behind
-but not lined up, slide sideways onto the block's line; not behind, step clear
-of the block sideways and then back past it. All seeds at once, with masks.
+Per seed, from the pusher's and the block's positions alone (``pusher``, ``block``,
+read by key; moves found by their action names): push the block along x until it is
+within goal_radius / sqrt(2) of the goal's x, then along y (a fixed order: choosing
+the farther axis each step thrashes on diagonals, each switch costing a detour). If
+the pusher is behind the block on that axis (on the side away from the goal) and
+lined up with it, move toward the goal; behind but not lined up, slide sideways onto
+the block's line; not behind, step clear of the block sideways and then back past
+it. All seeds at once, with masks.
 Non-learning: ``observe`` does nothing and it holds no state.
 """
 from __future__ import annotations
