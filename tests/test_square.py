@@ -6,7 +6,7 @@ from torchrl.envs.utils import check_env_specs
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS, parse_seeds, resolve_config, run_experiment
 from trl_dgpq.collectors.online import OnlineCollector
 from trl_dgpq.envs.square.env import SquareEnv
-from trl_dgpq.rng import SeedStreams, splitmix64, splitmix64_reference
+from trl_dgpq.rng import SeedStreams, splitmix64, splitmix64_reference, stream_id
 
 def test_specs_and_dynamics():
     env = SquareEnv(seeds=[0, 1, 2])
@@ -89,6 +89,15 @@ def test_rng_matches_reference_and_is_batch_invariant():
         assert torch.equal(alone.uniform(4)[0], batch.uniform(4)[1])
     u = SeedStreams(list(range(50))).uniform(200)
     assert 0.45 < u.mean() < 0.55 and u.min() >= 0 and u.max() < 1
+
+
+def test_named_streams_never_change_and_never_meet_the_numbered_ones():
+    """A named stream's id is part of every result drawn from it: it must be the same in every
+    process and version (these values were recorded when stream_id was written)."""
+    assert stream_id("corridor.wind") == 545550430812439
+    assert stream_id("a") != stream_id("b") and min(stream_id("a"), stream_id("b")) >= 2 ** 48
+    a, b = SeedStreams([1], stream=stream_id("a")), SeedStreams([1], stream=stream_id("b"))
+    assert not torch.equal(a.uniform(3), b.uniform(3))
 
 
 def test_truncation_is_not_terminal_for_the_learner():
