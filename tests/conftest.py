@@ -1,9 +1,19 @@
+import io
 import os
 import signal
 
 import pytest
+import torch
 
 from trl_dgpq.collectors import runner
+
+
+def through_disk(state):
+    """What a checkpoint does to a state: torch.save, then torch.load(weights_only=True)."""
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    buf.seek(0)
+    return torch.load(buf, weights_only=True)
 
 
 @pytest.fixture

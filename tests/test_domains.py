@@ -2,7 +2,6 @@
 TorchRL's spec check, a rollout, seeds independent of their batch, an exact state round
 trip, what EnvInfo promises, and settings outside their declared range refused in one
 line. A new domain folder is picked up here with no edit; one without an example fails."""
-import io
 import math
 import subprocess
 import sys
@@ -11,6 +10,7 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
+from conftest import through_disk
 from trl_dgpq.config import leaves, with_overrides
 from trl_dgpq.envs import DOMAINS, domains, env_class
 
@@ -46,13 +46,6 @@ def trajectory(env, seeds, steps, td=None):
         nxt = step["next"]
         out.append((nxt["observation"].clone(), nxt["reward"].clone(), nxt["done"].clone()))
     return out, td
-
-
-def through_disk(state):
-    buf = io.BytesIO()
-    torch.save(state, buf)
-    buf.seek(0)
-    return torch.load(buf, weights_only=True)
 
 
 def test_every_domain_has_an_example():

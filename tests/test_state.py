@@ -1,32 +1,24 @@
 """Everything with state saves and restores exactly: a restored copy, continued the same
 way, gives bitwise the same results as the original. And an interrupted run, resumed,
 writes the same episodes.csv as an uninterrupted one."""
-import io
 
 import pandas as pd
 import pytest
 import torch
 from tensordict import TensorDictBase
 
+from conftest import through_disk
 from trl_dgpq.agents import agent_names
-from trl_dgpq.envs import domains
 from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS, build, resolve_config
 from trl_dgpq.collectors.online import OnlineCollector
+from trl_dgpq.envs import domains
 from trl_dgpq.envs.square.env import SquareEnv
 from trl_dgpq.gp import ExactGP, ManifoldKernel, RBFKernel, SparseOnlineGP, fit
 from trl_dgpq.qhat import LipschitzQ
 from trl_dgpq.rng import SeedStreams
 
 D = torch.float64
-
-
-def through_disk(state):
-    """What a checkpoint does to a state: torch.save, then torch.load(weights_only=True)."""
-    buf = io.BytesIO()
-    torch.save(state, buf)
-    buf.seek(0)
-    return torch.load(buf, weights_only=True)
 
 
 def test_seed_streams_continue_where_they_were():
