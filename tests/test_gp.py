@@ -4,16 +4,19 @@ import torch
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import RBF, ConstantKernel
 
-from trl_dgpq.gp import ExactGP, GPNumericalError, RBFKernel, SparseOnlineGP
+from trl_dgpq.gp import ExactGP, GPNumericalError, ManifoldKernel, RBFKernel, SparseOnlineGP
 
 LS, OS, NOISE = 0.3, 1.5, 0.1
 D = torch.float64
 
 
-def sklearn_predict(X, y, Xq, noise=NOISE):
-    sk = GaussianProcessRegressor(ConstantKernel(OS, "fixed") * RBF(LS, "fixed"),
-                                  alpha=noise, optimizer=None).fit(X, y)
-    m, s = sk.predict(Xq, return_std=True)
+def sklearn_gp(X, y, noise=NOISE, ls=LS, os_=OS):
+    return GaussianProcessRegressor(ConstantKernel(os_, "fixed") * RBF(ls, "fixed"),
+                                    alpha=noise, optimizer=None).fit(X, y)
+
+
+def sklearn_predict(X, y, Xq, noise=NOISE, ls=LS, os_=OS):
+    m, s = sklearn_gp(X, y, noise, ls, os_).predict(Xq, return_std=True)
     return m, s ** 2
 
 
@@ -276,3 +279,100 @@ def test_jitter_ladder_keeps_each_matrix_at_the_jitter_that_fixed_it():
     rebuilt = L @ L.mT
     assert (rebuilt - torch.stack((A, B))).abs().max() < 2e-4
     assert (rebuilt[0] - A).abs().max() < 1e-8                      # A kept its tiny jitter
+
+
+# ------------------------------------------------ kernels, likelihood, NLL
+def test_one_kernel_call_signature_batch_shapes_and_select():
+    """A kernel with batch_shape (N,) on x1 (N, n, d), x2 (N, m, d) gives (N, n, m), row i
+    being GP i's own kernel; select(rows) is that kernel on those rows, bit for bit, and
+    its gradients reach only those rows. A shared kernel (batch_shape ()) broadcasts and
+    select returns it."""
+    g = torch.Generator().manual_seed(0)
+    x1, x2 = torch.rand(4, 5, 2, generator=g, dtype=D), torch.rand(4, 3, 2, generator=g, dtype=D)
+    rows = torch.tensor([3, 1])
+    per = RBFKernel(batch_shape=(4,))
+    with torch.no_grad():
+        per.raw_lengthscale.copy_(torch.tensor([0.2, 0.5, 1.0, 0.3], dtype=D).log())
+        per.raw_outputscale.copy_(torch.tensor([1.0, 2.0, 0.5, 1.5], dtype=D).log())
+    K = per(x1, x2)
+    assert per.batch_shape == (4,) and K.shape == (4, 5, 3) and per.diag(x1).shape == (4, 5)
+    for i in range(4):
+        alone = RBFKernel()
+        with torch.no_grad():
+            alone.raw_lengthscale.copy_(per.raw_lengthscale[i])
+            alone.raw_outputscale.copy_(per.raw_outputscale[i])
+        assert torch.equal(K[i], alone(x1[i], x2[i])) and torch.equal(per.diag(x1)[i], alone.diag(x1[i]))
+    for kernel in (per, ManifoldKernel(4, 2, hidden=(6,), lengthscale=0.4)):
+        sub = kernel.select(rows)
+        assert sub.batch_shape == (2,)
+        assert torch.equal(sub(x1[rows], x2[rows]), kernel(x1, x2)[rows])
+        assert torch.equal(sub.diag(x1[rows]), kernel.diag(x1)[rows])
+        kernel.zero_grad()
+        kernel.select(rows)(x1[rows], x2[rows]).sum().backward()
+        for name, p in kernel.named_parameters():
+            touched = p.grad.reshape(4, -1).abs().sum(1) > 0
+            assert touched.tolist() == [False, True, False, True], name
+    shared = RBFKernel(LS, OS)
+    assert shared.batch_shape == () and shared.select(rows) is shared
+    assert shared(x1, x2).shape == (4, 5, 3) and shared(x1[0], x2[0]).shape == (5, 3)
+
+
+def test_per_gp_kernel_hyperparameters_reach_their_own_gp():
+    """Each GP of a (3, 2) batch with its own lengthscale and outputscale (an RBF kernel
+    with batch_shape (6,)) matches sklearn with its own values, through masked (gathered)
+    adds, gated adds and masked and full predictions."""
+    X, y, masks, Xq = stream((3, 2), 30, seed=7)
+    ls, os_ = torch.linspace(0.15, 0.6, 6, dtype=D), torch.linspace(0.5, 2.0, 6, dtype=D)
+    kernel = RBFKernel(batch_shape=(6,))
+    with torch.no_grad():
+        kernel.raw_lengthscale.copy_(ls.log())
+        kernel.raw_outputscale.copy_(os_.log())
+    ls, os_ = kernel.lengthscale.detach(), kernel.outputscale.detach()
+    gp = ExactGP(kernel, NOISE, 2, batch_shape=(3, 2))
+    for t in range(30):
+        if t % 2:
+            gp.add(X[t], y[t], mask=masks[t])
+        else:
+            gp.add_if_uncertain(X[t], y[t], -1.0, mask=masks[t])  # gate below any variance: adds
+    some = torch.tensor([[True, False], [False, True], [True, True]])
+    for mask in (None, some):
+        mean, var = gp.predict(Xq, mask=mask)
+        for flat, idx in enumerate(np.ndindex(3, 2)):
+            if mask is not None and not mask[idx]:
+                assert (mean[idx] == 0).all() and torch.allclose(var[idx], os_[flat].expand(9))
+                continue
+            Xi, yi = per_gp_data(X, y, masks, idx)
+            ms, vs = sklearn_predict(Xi, yi, Xq[idx].numpy(), ls=ls[flat].item(), os_=os_[flat].item())
+            np.testing.assert_allclose(mean[idx].numpy(), ms, atol=1e-8, rtol=0)
+            np.testing.assert_allclose(var[idx].numpy(), vs, atol=1e-8, rtol=0)
+
+
+def test_kernel_batch_shape_must_fit_the_gp_batch():
+    with pytest.raises(ValueError, match="batch_shape"):
+        ExactGP(ManifoldKernel(5, 2), NOISE, 2, batch_shape=(2, 3))
+    with pytest.raises(ValueError, match="batch_shape"):
+        RBFKernel(batch_shape=(2, 3))
+    with pytest.raises(TypeError, match="Kernel"):
+        ExactGP(torch.nn.Linear(2, 2), NOISE, 2)
+    assert ExactGP(ManifoldKernel(6, 2), NOISE, 2, batch_shape=(2, 3)).kernel.batch_shape == (6,)
+
+
+@pytest.mark.parametrize("cls,kw", [(ExactGP, {}), (SparseOnlineGP, {"budget": 8})])
+def test_likelihood_and_state_dict_round_trip(cls, kw):
+    """The noise is the likelihood's (exactly the value given), and the GP's state_dict -
+    data, kernel and likelihood - is plain tensors that rebuild the GP bit for bit."""
+    X, y, masks, Xq = stream((2,), 20, seed=9)
+    gp = cls(ManifoldKernel(2, 2, lengthscale=0.3), NOISE, 2, batch_shape=(2,), **kw)
+    assert gp.likelihood.noise.tolist() == [NOISE, NOISE]
+    assert torch.equal(gp.likelihood.raw_noise.detach(), gp.likelihood.noise.log())
+    for t in range(20):
+        gp.add(X[t], y[t], mask=masks[t])
+    state = gp.state_dict()
+    assert {"kernel.raw_lengthscale", "kernel.weight0", "likelihood.noise", "likelihood.raw_noise"} <= set(state)
+    assert all(type(v) is torch.Tensor for v in state.values())
+    other = cls(ManifoldKernel(2, 2, lengthscale=0.3, uniform=lambda n, c: torch.rand(n, c, dtype=D)), 0.5, 2,
+                batch_shape=(2,), **kw)
+    other.load_state_dict(state)
+    for a, b in zip(gp.predict(Xq), other.predict(Xq)):
+        assert torch.equal(a, b)
+    assert torch.equal(other.likelihood.noise, gp.likelihood.noise)

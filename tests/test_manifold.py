@@ -5,10 +5,9 @@ import torch
 
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS, build, resolve_config, run_experiment
 from trl_dgpq.collectors.online import OnlineCollector
-from trl_dgpq.config import with_overrides
+from trl_dgpq.config import find_leaf, from_dict, to_dict, with_overrides
 from trl_dgpq.dgpq import DGPQ, DGPQConfig
 from trl_dgpq.gp import ExactGP, ManifoldKernel, RBFKernel, fit
-from trl_dgpq.gp.train import _nll
 
 D = torch.float64
 
@@ -35,17 +34,15 @@ def test_fit_lowers_nll_and_gradients_reach_every_parameter():
     x, y = step_data(60)
     gp = ExactGP(ManifoldKernel(2, 1, hidden=(10,), lengthscale=0.3), 0.1, 1, batch_shape=(2,))
     gp.set_data(torch.stack((x, x)), torch.stack((y, -y)))
-    rows = torch.arange(2)
-    valid = torch.ones(2, 60, dtype=torch.bool)
     with torch.enable_grad():
-        raw_noise = gp.noise.log().clone().requires_grad_()
-        nll, ok = _nll(gp, rows, raw_noise, gp.X[:, :60], gp.Y[:, :60], valid)
+        nll, ok = gp.neg_log_marginal_likelihood()
         nll.sum().backward()
-    assert ok.all()
+    assert ok.all() and nll.shape == (2,)
     for name, p in gp.kernel.named_parameters():
         assert p.grad is not None and torch.isfinite(p.grad).all(), name
         assert (p.grad.reshape(2, -1).abs().sum(1) > 0).all(), f"no gradient reaches {name} of every GP"
-    assert (raw_noise.grad.abs() > 0).all()
+    assert (gp.likelihood.raw_noise.grad.abs() > 0).all()
+    gp.zero_grad()
     out = fit(gp, steps=40, lr=0.02)
     assert (out["nll_after"] < out["nll_before"] - 1.0).all() and not out["frozen"].any()
     m, v = gp.predict(torch.linspace(-1, 1, 20, dtype=D).expand(2, 20)[..., None])
@@ -88,7 +85,8 @@ def test_no_nan_over_2000_dgpq_steps():
     assert agent.kernel_fits.sum() > 0
     for name, p in agent.gp.kernel.named_parameters():
         assert torch.isfinite(p).all(), name
-    assert torch.isfinite(agent.gp.noise).all() and (agent.gp.noise > 0).all()
+    noise = agent.gp.likelihood.noise
+    assert torch.isfinite(noise).all() and (noise > 0).all()
     assert torch.isfinite(agent.gp.L).all() and torch.isfinite(agent.gp.z).all()
     assert len(df) >= 2 and df["return"].notna().all()
 
@@ -110,7 +108,7 @@ def test_fit_trouble_keeps_last_good_parameters_and_logs(caplog):
         out = fit(gp, steps=30, lr=1e4)  # absurd step size: blows up unless guarded
     for name, p in gp.kernel.named_parameters():
         assert torch.isfinite(p).all(), name
-    assert torch.isfinite(gp.noise).all() and torch.isfinite(gp.L).all()
+    assert torch.isfinite(gp.likelihood.noise).all() and torch.isfinite(gp.L).all()
     m, v = gp.predict(x[None, :5])
     assert torch.isfinite(m).all() and torch.isfinite(v).all()
     assert out["frozen"].all() and "kept their last good parameters" in caplog.text
@@ -124,7 +122,7 @@ def test_fit_with_a_shared_kernel_refits_every_gp():
     gp = ExactGP(RBFKernel(1.0, 1.0), 0.1, 1, batch_shape=(2,))
     gp.set_data(torch.stack((x, x)), torch.stack((y, -y)))
     fit(gp, torch.tensor([True, False]), steps=30, lr=0.05)
-    ls, os_, noise = gp.kernel.lengthscale.item(), gp.kernel.outputscale.item(), gp.noise[1].item()
+    ls, os_, noise = gp.kernel.lengthscale.item(), gp.kernel.outputscale.item(), gp.likelihood.noise[1].item()
     assert abs(ls - 1.0) > 0.05  # the kernel did change
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import RBF, ConstantKernel
@@ -141,19 +139,18 @@ def test_a_frozen_gp_stays_at_its_last_good_parameters(monkeypatch):
     """GP 0's loss is non-finite once, at the 6th evaluation: it is frozen at the parameters
     of the 5th and must not move again (Adam's momentum would keep moving it, and its loss
     is finite again by the end), while GP 1 trains on."""
-    import trl_dgpq.gp.train as train
     x, y = step_data(40)
     gp = ExactGP(ManifoldKernel(2, 1, hidden=(10,), lengthscale=0.3), 0.1, 1, batch_shape=(2,))
     gp.set_data(torch.stack((x, x)), torch.stack((y, -y)))
-    seen, real = [], train._nll
+    seen, real = [], ExactGP.neg_log_marginal_likelihood
 
-    def nll(gp_, rows, raw_noise, *a):
+    def nll(gp_, mask=None):
         seen.append([p.detach()[0].clone() for p in gp_.kernel.parameters()])
-        out, ok = real(gp_, rows, raw_noise, *a)
+        out, ok = real(gp_, mask)
         if len(seen) == 6:  # a passing trouble of GP 0
             out = torch.where(torch.arange(2) == 0, torch.nan, out)
         return out, ok
-    monkeypatch.setattr(train, "_nll", nll)
+    monkeypatch.setattr(ExactGP, "neg_log_marginal_likelihood", nll)
     start1 = [p.detach()[1].clone() for p in gp.kernel.parameters()]
     out = fit(gp, steps=20, lr=0.05)
     assert out["frozen"].tolist() == [True, False]
@@ -190,3 +187,51 @@ def test_manifold_kernel_trains_once_per_kernel_train_every_new_points():
         assert out["learn"].item() and not out["update"].item()
     assert ag.gp.size.tolist() == [[7, 0]]
     assert ag.kernel_fits.tolist() == [2]
+
+
+@pytest.mark.parametrize("kernel", ["manifold", "rbf"])
+def test_fitting_one_gp_leaves_the_others_bit_identical(kernel):
+    """Per-GP hyperparameters do not leak: fitting GP 1 of 3 moves GP 1's kernel rows, noise
+    and predictions, and leaves every row of GPs 0 and 2 - data, factor, kernel parameters,
+    noise - and their predictions bit-identical."""
+    x, y = step_data(40)
+    k = (ManifoldKernel(3, 1, hidden=(10,), lengthscale=0.3) if kernel == "manifold"
+         else RBFKernel(0.3, 1.0, batch_shape=(3,)))
+    gp = ExactGP(k, 0.1, 1, batch_shape=(3,))
+    gp.set_data(torch.stack((x, -x, x)), torch.stack((y, y, -y)))
+    xq = torch.linspace(-1, 1, 9, dtype=D).expand(3, 9)[..., None]
+    before = {name: t.clone() for name, t in gp.state_dict().items()}
+    m0, v0 = gp.predict(xq)
+    out = fit(gp, torch.tensor([False, True, False]), steps=20, lr=0.05)
+    assert out["rows"].tolist() == [1] and not out["frozen"].any()
+    after = gp.state_dict()
+    assert all(t.shape[0] == 3 for t in after.values())  # every state tensor has one row per GP
+    for name, t in before.items():
+        assert torch.equal(after[name][[0, 2]], t[[0, 2]]), name
+    moved = [name for name, t in before.items() if not torch.equal(after[name][1], t[1])]
+    assert set(moved) >= {f"kernel.{n}" for n, _ in gp.kernel.named_parameters()} | {"likelihood.noise"}
+    m1, v1 = gp.predict(xq)
+    assert torch.equal(m1[[0, 2]], m0[[0, 2]]) and torch.equal(v1[[0, 2]], v0[[0, 2]])
+    assert not torch.equal(m1[1], m0[1])
+
+
+def test_kernel_training_settings_are_dgpqs_and_old_configs_still_load():
+    """kernel_train_every & co. are DGPQConfig's own settings (same flat names, so the
+    flags and presets keep working); a config recorded before the move holds them under
+    gp, and from_dict moves them (DGPQConfig.upgrade)."""
+    cfg = with_overrides(DGPQConfig(), dict(kernel="manifold", gp="exact", kernel_train_every=7, kernel_lr=0.05))
+    assert (cfg.kernel_train_every, cfg.kernel_lr, cfg.kernel_min_points) == (7, 0.05, 5)
+    for key in DGPQConfig.KERNEL_TRAINING:
+        assert find_leaf(DGPQConfig, key).path == (key,)
+    new = to_dict(cfg)
+    assert not set(DGPQConfig.KERNEL_TRAINING) & set(new["gp"])
+    old = {k: v for k, v in new.items() if k not in DGPQConfig.KERNEL_TRAINING}
+    old["gp"] = dict(new["gp"], **{k: new[k] for k in DGPQConfig.KERNEL_TRAINING})
+    assert from_dict(DGPQConfig, old) == cfg
+    assert DGPQConfig.upgrade(new) is new
+    with pytest.raises(ValueError, match="given twice"):
+        from_dict(DGPQConfig, dict(old, kernel_lr=0.1))
+    for bad, match in ((dict(kernel_train_every=0), "kernel_train_every"), (dict(kernel_lr=0.0), "kernel_lr"),
+                       (dict(kernel_train_steps=0), "kernel_train_steps")):
+        with pytest.raises(ValueError, match=match):
+            with_overrides(DGPQConfig(), bad).resolve(4)

@@ -58,6 +58,28 @@ class DGPQConfig:
     state_scale: Tuple[float, ...] = setting((), "weights multiplying the observation's dimensions before "
                                                  "Q̂ and the GPs see them; 0 drops a dimension (empty: as is)")
     gp: GPConfig = nested(GPConfig)
+    kernel_train_every: int = setting(20, "manifold: train a GP's kernel after this many new points ...")
+    kernel_min_points: int = setting(5, "manifold: ... if the GP then holds at least this many")
+    kernel_train_steps: int = setting(50, "manifold: Adam steps per training")
+    kernel_lr: float = setting(0.01, "manifold: Adam learning rate")
+
+    KERNEL_TRAINING = ("kernel_train_every", "kernel_min_points", "kernel_train_steps", "kernel_lr")
+
+    @classmethod
+    def upgrade(cls, d: dict) -> dict:
+        """A recorded config (``to_dict`` form) in today's layout: configs written before
+        the kernel training schedule moved here from GPConfig hold it under ``gp``."""
+        gp = d.get("gp")
+        old = [k for k in cls.KERNEL_TRAINING if k in gp] if isinstance(gp, dict) else []
+        if not old:
+            return d
+        d, gp = dict(d), dict(gp)
+        for k in old:
+            if k in d:
+                raise ValueError(f"{k} is given twice, as {k} and (in the old layout) as gp.{k}")
+            d[k] = gp.pop(k)
+        d["gp"] = gp
+        return d
 
     @staticmethod
     def implied(given: dict) -> dict:
@@ -84,6 +106,11 @@ class DGPQConfig:
                 self.state_scale and not any(self.state_scale)):
             bad(f"state_scale must be finite weights >= 0, not all 0, got {list(self.state_scale)}")
         self.gp.check()
+        if not (finite(self.kernel_lr) and self.kernel_lr > 0):
+            bad(f"kernel_lr must be a finite number > 0, got {self.kernel_lr}")
+        for name in ("kernel_train_every", "kernel_min_points", "kernel_train_steps"):
+            if getattr(self, name) < 1:
+                bad(f"{name} must be a positive integer, got {getattr(self, name)}")
         if self.sigma_tol2 is None or self.eps1 is None:
             if None in (self.eps, self.delta, self.r_max):
                 bad("give sigma_tol2 and eps1, or eps, delta and r_max to derive them (Section 5)")
@@ -279,10 +306,10 @@ class DGPQ:
         last training and holds at least ``kernel_min_points``, fit its feature map and
         hyperparameters to the (s, residual) pairs it holds by NLL, and rebuild it."""
         self.since_fit += added
-        g = self.cfg.gp
-        due = (self.since_fit >= g.kernel_train_every) & (self.gp.size >= g.kernel_min_points)
+        c = self.cfg
+        due = (self.since_fit >= c.kernel_train_every) & (self.gp.size >= c.kernel_min_points)
         if due.any():
-            fit(self.gp, due, steps=g.kernel_train_steps, lr=g.kernel_lr, min_points=g.kernel_min_points)
+            fit(self.gp, due, steps=c.kernel_train_steps, lr=c.kernel_lr, min_points=c.kernel_min_points)
             self.since_fit[due] = 0
             self.kernel_fits += due.sum(-1)
 

@@ -1,17 +1,23 @@
 """The interface every GP backend implements, and the batching around it.
 
-A backend object holds ``prod(batch_shape)`` independent zero-mean GPs. Its
-state lives in tensors with one flat leading dimension ``N``. Public methods take
-and return tensors with the caller's ``batch_shape`` in front; a ``mask`` over the
+A backend object (a model, in GPyTorch's words) holds ``prod(batch_shape)``
+independent zero-mean GPs. It owns a kernel (``gp.kernel``, see ``kernels``) and a
+``GaussianLikelihood`` (``gp.likelihood``, the per-GP observation noise). Its
+state lives in tensors with one flat leading dimension ``N``, and so do the
+kernel's parameters when it has one set per GP (kernel ``batch_shape (N,)``; a
+kernel with ``batch_shape ()`` is shared by all N). Public methods take and
+return tensors with the caller's ``batch_shape`` in front; a ``mask`` over the
 batch selects which GPs take part. Selected GPs are *gathered* into a compact
 sub-batch, updated, and written back, so touching one GP of each seed costs one
-GP's work, not ``A`` of them (DGPQ touches only the taken action's GP).
+GP's work, not ``A`` of them (DGPQ touches only the taken action's GP). A
+sub-batch evaluates ``kernel.select(rows)``, the kernel of just those GPs.
 
 Backends implement:
     _state_names          names of the state tensors (leading dim N)
     _empty_state(k)       dict of state tensors for k empty GPs
     _add(st, x, y, gate)  update state dict ``st`` in place with one point per GP
     _predict(st, xq)      mean, latent variance (k, q)
+using ``_kernel(st)`` and ``_noise(st)``, the kernel and noise of the GPs of ``st``.
 """
 from __future__ import annotations
 
@@ -22,7 +28,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from .kernels import DTYPE
+from .kernels import DTYPE, Kernel
+from .likelihood import GaussianLikelihood
 
 State = Dict[str, torch.Tensor]
 
@@ -41,34 +48,31 @@ class BatchedGP(nn.Module):
 
     _state_names: Tuple[str, ...] = ()
 
-    def __init__(self, kernel: nn.Module, noise_var: float, dim: int,
+    def __init__(self, kernel: Kernel, noise_var: float, dim: int,
                  batch_shape: Sequence[int] = (), dtype=DTYPE, device=None):
+        """kernel: batch_shape () (shared) or (prod(batch_shape),) (one set per GP);
+        noise_var: the initial observation noise of every GP (see ``likelihood``)."""
         super().__init__()
-        noise_var = float(noise_var)
-        if not math.isfinite(noise_var) or noise_var < 0:
-            raise ValueError(f"noise_var must be finite and >= 0, got {noise_var}")
         if int(dim) != dim or dim < 1:
             raise ValueError(f"dim must be a positive integer, got {dim}")
         batch_shape = torch.Size(batch_shape)
         if any(b < 1 for b in batch_shape):
             raise ValueError(f"batch_shape entries must be >= 1, got {tuple(batch_shape)}")
+        if not isinstance(kernel, Kernel):
+            raise TypeError(f"kernel must be a trl_dgpq.gp.Kernel, got {type(kernel).__name__}")
+        self.num_gps = math.prod(batch_shape)
+        if kernel.batch_shape not in (torch.Size(), torch.Size([self.num_gps])):
+            raise ValueError(f"kernel batch_shape {tuple(kernel.batch_shape)} must be () (shared) or "
+                             f"({self.num_gps},) (one set per GP) for batch_shape {tuple(batch_shape)}")
+        self.device = torch.device(device) if device is not None else torch.device("cpu")
         self.kernel = kernel.to(dtype=dtype, device=device)
-        self.noise_var = noise_var  # the initial observation noise of every GP
-        # Kernels with one set of parameters per GP (ManifoldKernel) set per_gp = True
-        # and take the flat GP indices of the rows they are evaluated for.
-        self._per_gp = bool(getattr(kernel, "per_gp", False))
-        if self._per_gp and getattr(kernel, "num_gps", None) != math.prod(batch_shape):
-            raise ValueError(f"kernel has parameters for {getattr(kernel, 'num_gps', None)} GPs, "
-                             f"batch_shape {tuple(batch_shape)} needs {math.prod(batch_shape)}")
+        # Per-GP observation noise (trainable by trl_dgpq.gp.train); survives reset().
+        self.likelihood = GaussianLikelihood(noise_var, (self.num_gps,), dtype=dtype, device=self.device)
         self.dim = int(dim)
         self.batch_shape = batch_shape
-        self.num_gps = math.prod(batch_shape)
         self.dtype = dtype
-        self.device = torch.device(device) if device is not None else torch.device("cpu")
         for name, t in self._empty_state(self.num_gps).items():
             self.register_buffer(name, t)
-        # Per-GP noise (trainable by trl_dgpq.gp.train); survives reset().
-        self.register_buffer("noise", torch.full((self.num_gps,), noise_var, dtype=dtype, device=self.device))
 
     # ------------------------------------------------------------------ public
     @property
@@ -116,7 +120,7 @@ class BatchedGP(nn.Module):
         if gate is None:
             return None
         if rows is not None:  # unselected GPs report their prior
-            prior = self._kdiag(None, x)
+            prior = self.kernel.diag(x)
             res = (prior.clone(), torch.zeros_like(prior), prior.clone(),
                    torch.zeros(self.num_gps, dtype=torch.bool, device=self.device))
             if rows.numel():
@@ -144,7 +148,7 @@ class BatchedGP(nn.Module):
             mean, var = self._predict(self._state(), xq)
         else:
             mean = xq.new_zeros(self.num_gps, q)
-            var = self._kdiag(None, xq).clone()
+            var = self.kernel.diag(xq).clone()
             if rows.numel():
                 m, v = self._predict(self._state(rows, self._width(self.n[rows])), xq[rows])
                 mean[rows], var[rows] = m, v
@@ -193,20 +197,17 @@ class BatchedGP(nn.Module):
             # index_select on the narrowed view copies only what is used (t[rows, :w] copies whole rows first)
             st = {k: getattr(self, k)[rows] if k == "n" else self._narrow(k, getattr(self, k), width).index_select(0, rows)
                   for k in self._state_names}
-        st["rows"] = rows  # which GPs, for per-GP kernels and noise (None = all)
+        st["rows"] = rows  # which GPs, for the kernel and noise (None = all)
         return st
 
-    def _k(self, st: State, x1: torch.Tensor, x2: torch.Tensor) -> torch.Tensor:
-        """Kernel matrix for the GPs of ``st`` (x1, x2 with their flat leading dim)."""
-        return self.kernel(x1, x2, rows=st["rows"]) if self._per_gp else self.kernel(x1, x2)
-
-    def _kdiag(self, st: Optional[State], x: torch.Tensor) -> torch.Tensor:
-        rows = None if st is None else st["rows"]
-        return self.kernel.diag(x, rows=rows) if self._per_gp else self.kernel.diag(x)
+    def _kernel(self, st: State):
+        """The kernel of the GPs of ``st``, called on inputs with their leading dim k."""
+        return self.kernel.select(st["rows"])
 
     def _noise(self, st: State) -> torch.Tensor:
         """Observation noise of the GPs of ``st``, (k,)."""
-        return self.noise if st["rows"] is None else self.noise[st["rows"]]
+        noise = self.likelihood.noise
+        return noise if st["rows"] is None else noise[st["rows"]]
 
     def _write(self, rows: torch.Tensor, st: State, width: Optional[int] = None) -> None:
         for k in self._state_names:

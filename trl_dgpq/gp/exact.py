@@ -1,7 +1,7 @@
 """Exact GP regression with an incrementally bordered Cholesky factor.
 
 State per GP (capacity ``c``): inputs X ``(c, d)``, targets Y ``(c,)``, the lower
-Cholesky factor L of ``K + noise_var I`` ``(c, c)``, ``z = L^-1 y`` ``(c,)`` and the
+Cholesky factor L of ``K + noise I`` ``(c, c)``, ``z = L^-1 y`` ``(c,)`` and the
 count n. Unused rows of L are identity rows and unused entries of X, Y, z are 0, so
 GPs of different sizes share one batched triangular solve:
     mean(x*) = (L^-1 k*)^T z,    var(x*) = k** - |L^-1 k*|^2.
@@ -10,6 +10,7 @@ O(n^2), never a re-factorisation.
 """
 from __future__ import annotations
 
+import math
 from typing import Optional
 
 import torch
@@ -23,7 +24,11 @@ JITTERS = (1e-10, 1e-8, 1e-6, 1e-4)
 class ExactGP(BatchedGP):
     """Batched exact GP. ``capacity`` is the initial storage per GP; when a GP fills
     it, storage doubles (a copy, amortised O(1) per point). ``max_capacity`` (None =
-    unbounded) turns growth past it into a clear error instead."""
+    unbounded) turns growth past it into a clear error instead.
+
+    Kernel training (``trl_dgpq.gp.fit``) needs only two public methods:
+    ``neg_log_marginal_likelihood(mask)``, the differentiable loss, and
+    ``refit(mask)``, which re-factorises GPs after their parameters changed."""
 
     _state_names = ("X", "Y", "L", "z", "n")
 
@@ -84,10 +89,11 @@ class ExactGP(BatchedGP):
         n = st["n"]
         m, L = self._block(st, int(n.max()) + 1)  # the used block plus the new row
         ar = torch.arange(m, device=n.device)
-        kx = self._k(st, st["X"][:, :m], x[:, None])[..., 0] * (ar < n[:, None])
+        k = self._kernel(st)
+        kx = k(st["X"][:, :m], x[:, None])[..., 0] * (ar < n[:, None])
         # Identity padding keeps l zero beyond each GP's own n.
         l = torch.linalg.solve_triangular(L, kx[..., None], upper=False)[..., 0]
-        kxx = self._kdiag(st, x[:, None])[:, 0]
+        kxx = k.diag(x[:, None])[:, 0]
         noise = self._noise(st)
         mean = (l * st["z"][:, :m]).sum(-1)
         var = kxx - l.square().sum(-1)
@@ -136,12 +142,13 @@ class ExactGP(BatchedGP):
     def _predict(self, st: State, xq: torch.Tensor):
         n = st["n"]
         m = int(n.max()) if n.numel() else 0
-        kqq = self._kdiag(st, xq)
+        k = self._kernel(st)
+        kqq = k.diag(xq)
         if m == 0:
             return torch.zeros_like(kqq), kqq.clone()
         m, L = self._block(st, m)
         ar = torch.arange(m, device=n.device)
-        kx = self._k(st, st["X"][:, :m], xq) * (ar < n[:, None])[..., None]  # (k, m, q)
+        kx = k(st["X"][:, :m], xq) * (ar < n[:, None])[..., None]  # (k, m, q)
         v = torch.linalg.solve_triangular(L, kx, upper=False)
         mean = (v * st["z"][:, :m, None]).sum(-2)
         var = kqq - v.square().sum(-2)
@@ -166,8 +173,8 @@ class ExactGP(BatchedGP):
 
     @torch.no_grad()
     def refit(self, mask: Optional[torch.Tensor] = None) -> None:
-        """Re-factorise the selected GPs from their stored data, e.g. after the kernel's
-        hyperparameters or feature map changed."""
+        """Re-factorise the selected GPs from their stored data with the kernel's and the
+        likelihood's current parameters, e.g. after training changed them."""
         rows = self._rows(mask)
         rows = torch.arange(self.num_gps, device=self.device) if rows is None else rows
         for r in rows.tolist():  # GPs may hold different n: one factorisation each
@@ -176,12 +183,46 @@ class ExactGP(BatchedGP):
                 self._factorise(torch.tensor([r], device=self.device),
                                 self.X[r:r + 1, :npts].clone(), self.Y[r:r + 1, :npts].clone())
 
+    def neg_log_marginal_likelihood(self, mask: Optional[torch.Tensor] = None):
+        """Exact negative log marginal likelihood of each selected GP's stored data,
+
+            NLL = 1/2 y^T (K + s^2 I)^-1 y + 1/2 log|K + s^2 I| + n/2 log(2 pi),
+
+        differentiable with respect to the kernel's parameters and the likelihood's
+        ``raw_noise`` (the noise enters as ``exp(raw_noise)``): the loss of kernel
+        training. Each GP's loss involves only its own rows of per-GP parameters.
+        Returns ``(nll, ok)``, each ``(k,)`` for the k GPs of ``mask`` (None: all) in
+        row-major order; ``ok`` is False where the factorisation failed even with the
+        jitter ladder, so that ``nll`` means nothing there.
+        """
+        rows = self._rows(mask)
+        rows = torch.arange(self.num_gps, device=self.device) if rows is None else rows
+        n = self.n[rows]
+        m = int(n.max()) if rows.numel() else 0
+        if m == 0:
+            return n.to(self.dtype) * 0, torch.ones_like(n, dtype=torch.bool)
+        X, Y = self.X[rows, :m], self.Y[rows, :m]
+        valid = torch.arange(m, device=self.device) < n[:, None]
+        k = self.kernel.select(rows)
+        K = k(X, X)
+        pair = valid[:, :, None] & valid[:, None, :]
+        eye = torch.eye(m, dtype=K.dtype, device=K.device)
+        noise = self.likelihood.raw_noise[rows].exp()
+        # Padded rows/cols become identity, which adds exactly 0 to the NLL.
+        K = torch.where(pair, K, 0.0) + eye * torch.where(valid, noise[:, None], 1.0)[:, :, None]
+        L, info = cholesky_ladder(K, k.diag(X).amax(-1).detach())  # per-GP jitter
+        z = torch.linalg.solve_triangular(L, (Y * valid)[..., None], upper=False)[..., 0]
+        logdet = torch.where(valid, L.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).log(), 0.0).sum(-1)
+        nll = 0.5 * z.square().sum(-1) + logdet + 0.5 * valid.sum(-1) * math.log(2 * math.pi)
+        return nll, info == 0
+
     def _factorise(self, rows, x, y):
         npts = x.shape[-2]
         st = {"rows": rows}
-        K = self._k(st, x, x)
+        k = self._kernel(st)
+        K = k(x, x)
         K.diagonal(dim1=-2, dim2=-1).add_(self._noise(st)[:, None])
-        L = cholesky_jitter(K, self._kdiag(st, x).amax(-1), lambda bad: self._gp_names(rows[bad]))
+        L = cholesky_jitter(K, k.diag(x).amax(-1), lambda bad: self._gp_names(rows[bad]))
         z = torch.linalg.solve_triangular(L, y[..., None], upper=False)[..., 0]
         self.X[rows, :npts] = x
         self.Y[rows, :npts] = y

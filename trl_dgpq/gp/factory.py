@@ -1,4 +1,5 @@
-"""The GP part of an agent's configuration, and the factory that builds it."""
+"""The GP part of an agent's configuration, and the factory that builds it. (When and
+how an agent trains its kernel is the agent's own setting, e.g. DGPQConfig's.)"""
 from __future__ import annotations
 
 import math
@@ -32,18 +33,14 @@ class GPConfig:
     kernel_hidden: Tuple[int, ...] = setting((10,), "manifold: hidden widths, e.g. 10 or 16,16")
     kernel_skip: bool = setting(True, "manifold: features x + MLP(x), starting as the RBF kernel "
                                       "(--no-kernel-skip: the plain MLP output)")
-    kernel_train_every: int = setting(20, "manifold: train a GP's kernel after this many new points ...")
-    kernel_min_points: int = setting(5, "manifold: ... if the GP then holds at least this many")
-    kernel_train_steps: int = setting(50, "manifold: Adam steps per training")
-    kernel_lr: float = setting(0.01, "manifold: Adam learning rate")
 
     def check(self) -> "GPConfig":
         """Raise ValueError (one line) for impossible values; returns self."""
-        for name in ("noise_var", "lengthscale", "outputscale", "kernel_lr"):
+        for name in ("noise_var", "lengthscale", "outputscale"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {v}")
-        for name in ("budget", "capacity", "kernel_train_every", "kernel_min_points", "kernel_train_steps"):
+        for name in ("budget", "capacity"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)}")
         if not (math.isfinite(self.novelty_tol) and self.novelty_tol >= 0):
@@ -64,8 +61,9 @@ class GPConfig:
 
 
 def make_kernel(cfg: GPConfig, dim: int, seeds: Sequence[int], gps_per_seed: int):
-    """The config's kernel; a manifold kernel gets one feature map per GP (``gps_per_seed``
-    of them per seed), initialised from each seed's own random stream."""
+    """The config's kernel: a shared RBF kernel (batch_shape ()), or a manifold kernel with
+    one feature map per GP (batch_shape (len(seeds) * gps_per_seed,), seed-major),
+    initialised from each seed's own random stream."""
     if cfg.kernel == "rbf":
         return RBFKernel(cfg.lengthscale, cfg.outputscale)
     streams = SeedStreams(seeds, stream=KERNEL_STREAM)

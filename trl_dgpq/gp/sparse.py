@@ -48,7 +48,7 @@ class SparseOnlineGP(BatchedGP):
         self.budget = int(budget)
         self.novelty_tol = float(novelty_tol)
         super().__init__(kernel, noise_var, dim, batch_shape, **kw)
-        if self.noise_var == 0:
+        if not (self.likelihood.noise > 0).all():
             raise ValueError("SparseOnlineGP needs noise_var > 0")
 
     @property
@@ -87,14 +87,14 @@ class SparseOnlineGP(BatchedGP):
         """k(BV, x) ``(k, M, q)`` for x ``(k, q, d)``, zero on unused slots."""
         M = st["BV"].shape[1]
         used = torch.arange(M, device=x.device) < st["n"][:, None]
-        return self._k(st, st["BV"], x) * used[..., None]
+        return self._kernel(st)(st["BV"], x) * used[..., None]
 
     def _predict(self, st: State, xq: torch.Tensor):
         kx = self._kx(st, xq)                                          # (k, w, q)
         k, w, q = kx.shape
         mean = (kx * st["alpha"][..., None]).sum(-2)
         Ck = torch.bmm(kx.mT, st["CQ"][:, :w, :2 * w]).view(k, q, w, 2)[..., 0]  # (k, q, w)
-        var = self._kdiag(st, xq) + (kx.mT * Ck).sum(-1)
+        var = self._kernel(st).diag(xq) + (kx.mT * Ck).sum(-1)
         return mean, var
 
     # ------------------------------------------------------------- updates
@@ -103,7 +103,7 @@ class SparseOnlineGP(BatchedGP):
         k, w = alpha.shape   # w <= M slots in this (possibly narrowed) state
         M = self.budget + 1
         kx = self._kx(st, x[:, None])                                  # (k, w, 1)
-        kxx = self._kdiag(st, x[:, None])[:, 0]                        # (k,)
+        kxx = self._kernel(st).diag(x[:, None])[:, 0]                  # (k,)
         CQk = torch.bmm(kx.mT, CQ[:, :, :2 * w]).view(k, w, 2)         # (C k, Q k) interleaved
         Ck, e = CQk[..., 0], CQk[..., 1]
         kx = kx[..., 0]
