@@ -357,6 +357,23 @@ def test_kernel_batch_shape_must_fit_the_gp_batch():
     assert ExactGP(ManifoldKernel(6, 2), NOISE, 2, batch_shape=(2, 3)).kernel.batch_shape == (6,)
 
 
+def test_neg_log_marginal_likelihood_matches_sklearn():
+    """Per selected GP, for GPs holding different numbers of points (padded together); float64
+    throughout (the n/2 log(2 pi) term was float32 once, off by ~5e-7)."""
+    X, y, masks, _ = stream((3,), 25, seed=8)
+    gp = ExactGP(RBFKernel(LS, OS), NOISE, 2, batch_shape=(3,))
+    for t in range(25):
+        gp.add(X[t], y[t], mask=masks[t])
+    assert len(set(gp.size.tolist())) == 3
+    nll, ok = gp.neg_log_marginal_likelihood(torch.tensor([True, False, True]))
+    assert nll.shape == (2,) and ok.all()
+    for j, i in enumerate((0, 2)):
+        Xi, yi = per_gp_data(X, y, masks, (i,))
+        assert abs(nll[j].item() + sklearn_gp(Xi, yi).log_marginal_likelihood_value_) < 1e-9
+    full, _ = gp.neg_log_marginal_likelihood()
+    torch.testing.assert_close(full[[0, 2]], nll, atol=1e-12, rtol=0)  # padded to another size: round-off
+
+
 @pytest.mark.parametrize("cls,kw", [(ExactGP, {}), (SparseOnlineGP, {"budget": 8})])
 def test_likelihood_and_state_dict_round_trip(cls, kw):
     """The noise is the likelihood's (exactly the value given), and the GP's state_dict -

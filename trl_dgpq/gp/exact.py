@@ -213,7 +213,7 @@ class ExactGP(BatchedGP):
         L, info = cholesky_ladder(K, k.diag(X).amax(-1).detach())  # per-GP jitter
         z = torch.linalg.solve_triangular(L, (Y * valid)[..., None], upper=False)[..., 0]
         logdet = torch.where(valid, L.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).log(), 0.0).sum(-1)
-        nll = 0.5 * z.square().sum(-1) + logdet + 0.5 * valid.sum(-1) * math.log(2 * math.pi)
+        nll = 0.5 * z.square().sum(-1) + logdet + valid.sum(-1, dtype=K.dtype) * (0.5 * math.log(2 * math.pi))
         return nll, info == 0
 
     def _factorise(self, rows, x, y):
