@@ -28,7 +28,6 @@ from typing import Optional, Sequence, Tuple
 
 import torch
 
-from .envs.base import discrete_actions, observation_dim
 from .bounds import box_covering, section5, unit_square_covering
 from .config import nested, setting
 from .gp import GPConfig, fit, make_gp, make_kernel
@@ -166,49 +165,50 @@ class DGPQ:
 
     # ------------------------------------------------------------ runner API
     @classmethod
-    def resolve_config(cls, cfg: DGPQConfig, env) -> DGPQConfig:
-        cls._scale(cfg, env)
-        return cfg.resolve(discrete_actions(env, "dgpq"), cls._state_box(cfg, env))
+    def resolve_config(cls, cfg: DGPQConfig, info) -> DGPQConfig:
+        cls._scale(cfg, info)
+        return cfg.resolve(info.num_actions("dgpq"), cls._state_box(cfg, info))
 
     @classmethod
-    def make(cls, cfg: DGPQConfig, env, seeds: Sequence[int]) -> "DGPQ":
-        return cls(cfg, seeds, cls._state_dim(cfg, env), discrete_actions(env, "dgpq"), device=env.device,
-                   state_box=cls._state_box(cfg, env), scale=cls._scale(cfg, env))
+    def make(cls, cfg: DGPQConfig, info, seeds: Sequence[int]) -> "DGPQ":
+        """For the env described by ``info`` (``trl_dgpq.envs.base.EnvInfo``)."""
+        return cls(cfg, seeds, cls._state_dim(cfg, info), info.num_actions("dgpq"), device=info.device,
+                   state_box=cls._state_box(cfg, info), scale=cls._scale(cfg, info))
 
     @staticmethod
-    def _scale(cfg: DGPQConfig, env):
+    def _scale(cfg: DGPQConfig, info):
         """state_scale for this env as (indices of the dimensions kept, their weights), or
         None when observations are used as they are."""
         if not cfg.state_scale:
             return None
-        dim = observation_dim(env)
+        dim = info.observation_dim
         if len(cfg.state_scale) not in (1, dim):
             raise ValueError(f"state_scale needs 1 or {dim} weights for this env, got {len(cfg.state_scale)}")
         weights = list(cfg.state_scale) * (dim // len(cfg.state_scale))
         keep = [i for i, w in enumerate(weights) if w != 0]
-        return (torch.tensor(keep, device=env.device),
-                torch.tensor([weights[i] for i in keep], dtype=torch.float64, device=env.device))
+        return (torch.tensor(keep, device=info.device),
+                torch.tensor([weights[i] for i in keep], dtype=torch.float64, device=info.device))
 
     @classmethod
-    def _state_dim(cls, cfg: DGPQConfig, env) -> int:
-        scale = cls._scale(cfg, env)
-        return observation_dim(env) if scale is None else len(scale[0])
+    def _state_dim(cls, cfg: DGPQConfig, info) -> int:
+        scale = cls._scale(cfg, info)
+        return info.observation_dim if scale is None else len(scale[0])
 
     @classmethod
-    def _state_box(cls, cfg: DGPQConfig, env):
+    def _state_box(cls, cfg: DGPQConfig, info):
         if not (cfg.covering == "env" and (cfg.sigma_tol2 is None or cfg.eps1 is None)):
             return None
-        low, high = env.state_box()
-        scale = cls._scale(cfg, env)
+        low, high = info.state_box()
+        scale = cls._scale(cfg, info)
         if scale is None:
             return low, high
         keep, w = scale[0].tolist(), scale[1].tolist()
         return [low[i] * wi for i, wi in zip(keep, w)], [high[i] * wi for i, wi in zip(keep, w)]
 
     @classmethod
-    def memory_bytes(cls, cfg: DGPQConfig, env, num_seeds: int) -> int:
+    def memory_bytes(cls, cfg: DGPQConfig, info, num_seeds: int) -> int:
         """Storage at the start (GPs and Q̂ of every seed and action)."""
-        A, dim = discrete_actions(env, "dgpq"), cls._state_dim(cfg, env)
+        A, dim = info.num_actions("dgpq"), cls._state_dim(cfg, info)
         return num_seeds * A * (cfg.gp.bytes_per_gp(dim) + 8 * cfg.qhat_capacity * (dim + 1))
 
     def features(self, obs: torch.Tensor) -> torch.Tensor:
