@@ -22,14 +22,13 @@ active)`` read the TensorDicts of a TorchRL env and call ``select_action`` (step
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Optional, Sequence, Tuple
 
 import torch
 
 from .bounds import box_covering, section5, unit_square_covering
-from .config import nested, setting
+from .config import check_config, nested, setting
 from .gp import GPConfig, fit, make_gp, make_kernel
 from .qhat import METRICS, LipschitzQ
 from .rng import TIE_STREAM, SeedStreams
@@ -42,25 +41,31 @@ class DGPQConfig:
     """Delayed GP Q-learning (GWH14, Algorithm 1). Give ``sigma_tol2`` and ``eps1``
     directly, or set them to none and give ``eps``, ``delta`` and ``r_max`` to derive
     them by Section 5 (``resolve``)."""
-    gamma: float = setting(0.01, "discount gamma")
-    lipschitz: float = setting(1.0, "Lipschitz constant L_Q of the envelope Q̂ (Eq. 7)")
-    v_max: float = setting(2.0 / 0.99, "V_max, the value of Q̂ where nothing is known")
-    sigma_tol2: Optional[float] = setting(0.1, "variance threshold sigma_tol^2 (none: derive by Section 5)")
-    eps1: Optional[float] = setting(0.001, "optimism margin epsilon_1 (none: derive by Section 5)")
-    eps: Optional[float] = setting(None, "Section 5 accuracy epsilon (given alone, derives sigma_tol2 and eps1)")
-    delta: Optional[float] = setting(None, "Section 5 confidence delta")
-    r_max: Optional[float] = setting(None, "Section 5 R_max")
+    gamma: float = setting(0.01, "discount gamma", within="[0, 1]")
+    lipschitz: float = setting(1.0, "Lipschitz constant L_Q of the envelope Q̂ (Eq. 7)", within="(0, inf)")
+    v_max: float = setting(2.0 / 0.99, "V_max, the value of Q̂ where nothing is known", within="(-inf, inf)")
+    sigma_tol2: Optional[float] = setting(0.1, "variance threshold sigma_tol^2 (none: derive by Section 5)",
+                                          within="(0, inf)")
+    eps1: Optional[float] = setting(0.001, "optimism margin epsilon_1 (none: derive by Section 5)",
+                                    within="[0, inf)")
+    eps: Optional[float] = setting(None, "Section 5 accuracy epsilon (given alone, derives sigma_tol2 and eps1)",
+                                   within="(0, inf)")
+    delta: Optional[float] = setting(None, "Section 5 confidence delta", within="(0, 1)")
+    r_max: Optional[float] = setting(None, "Section 5 R_max", within="(0, inf)")
     covering: str = setting("env", "Section 5 covering number N_S: env (from the env's state box and the "
                                    "metric) or unit-square (the seed report's ceil(1/(pi r^2)))", choices=COVERINGS)
     metric: str = setting("l1", "state metric d of Q̂", choices=tuple(METRICS))
-    qhat_capacity: int = setting(64, "initial Q̂ storage, pairs per seed and action (doubles when full)")
+    qhat_capacity: int = setting(64, "initial Q̂ storage, pairs per seed and action (doubles when full)",
+                                 within="[1, inf)")
     state_scale: Tuple[float, ...] = setting((), "weights multiplying the observation's dimensions before "
-                                                 "Q̂ and the GPs see them; 0 drops a dimension (empty: as is)")
+                                                 "Q̂ and the GPs see them; 0 drops a dimension (empty: as is)",
+                                             within="[0, inf)")
     gp: GPConfig = nested(GPConfig)
-    kernel_train_every: int = setting(20, "manifold: train a GP's kernel after this many new points ...")
-    kernel_min_points: int = setting(5, "manifold: ... if the GP then holds at least this many")
-    kernel_train_steps: int = setting(50, "manifold: Adam steps per training")
-    kernel_lr: float = setting(0.01, "manifold: Adam learning rate")
+    kernel_train_every: int = setting(20, "manifold: train a GP's kernel after this many new points ...",
+                                      within="[1, inf)")
+    kernel_min_points: int = setting(5, "manifold: ... if the GP then holds at least this many", within="[1, inf)")
+    kernel_train_steps: int = setting(50, "manifold: Adam steps per training", within="[1, inf)")
+    kernel_lr: float = setting(0.01, "manifold: Adam learning rate", within="(0, inf)")
 
     KERNEL_TRAINING = ("kernel_train_every", "kernel_min_points", "kernel_train_steps", "kernel_lr")
 
@@ -87,46 +92,28 @@ class DGPQConfig:
             return {k: None for k in ("sigma_tol2", "eps1") if k not in given}
         return {}
 
+    def cross_check(self) -> None:
+        if self.state_scale and not any(self.state_scale):
+            raise ValueError(f"state_scale must be weights >= 0, not all 0, got {list(self.state_scale)}")
+
     def resolve(self, num_actions: int, state_box=None) -> "DGPQConfig":
-        """Validate, derive Section 5 values where missing; returns self. ``state_box``
-        (low, high) gives the covering number when ``covering`` is "env"."""
-        def bad(msg):
-            raise ValueError(msg)
-        finite = lambda v: v is not None and math.isfinite(v)  # noqa: E731
-        if not (finite(self.gamma) and 0 <= self.gamma <= 1):
-            bad(f"gamma must be in [0, 1], got {self.gamma}")
-        if not (finite(self.lipschitz) and self.lipschitz > 0):
-            bad(f"lipschitz must be a finite number > 0, got {self.lipschitz}")
-        if not finite(self.v_max):
-            bad(f"v_max must be finite, got {self.v_max}")
-        if self.qhat_capacity < 1:
-            bad(f"qhat_capacity must be a positive integer, got {self.qhat_capacity}")
-        if not all(finite(w) and w >= 0 for w in self.state_scale) or (
-                self.state_scale and not any(self.state_scale)):
-            bad(f"state_scale must be finite weights >= 0, not all 0, got {list(self.state_scale)}")
-        self.gp.check()
-        if not (finite(self.kernel_lr) and self.kernel_lr > 0):
-            bad(f"kernel_lr must be a finite number > 0, got {self.kernel_lr}")
-        for name in ("kernel_train_every", "kernel_min_points", "kernel_train_steps"):
-            if getattr(self, name) < 1:
-                bad(f"{name} must be a positive integer, got {getattr(self, name)}")
+        """Check, and derive Section 5 values where missing (checking them too); returns
+        self. ``state_box`` (low, high) gives the covering number when ``covering`` is "env"."""
+        check_config(self)
         if self.sigma_tol2 is None or self.eps1 is None:
             if None in (self.eps, self.delta, self.r_max):
-                bad("give sigma_tol2 and eps1, or eps, delta and r_max to derive them (Section 5)")
+                raise ValueError("give sigma_tol2 and eps1, or eps, delta and r_max to derive them (Section 5)")
             if self.covering == "unit-square":
                 covering = unit_square_covering
             elif state_box is None:
-                bad("Section 5 with covering 'env' needs the env's state box")
+                raise ValueError("Section 5 with covering 'env' needs the env's state box")
             else:
                 covering = box_covering(*state_box, self.metric)
             eps1, sigma_tol2 = section5(self.eps, self.delta, self.gamma, self.r_max, self.lipschitz,
                                         num_actions, self.gp.noise_var, covering)
             self.eps1 = eps1 if self.eps1 is None else self.eps1
             self.sigma_tol2 = sigma_tol2 if self.sigma_tol2 is None else self.sigma_tol2
-        if not (finite(self.sigma_tol2) and self.sigma_tol2 > 0):
-            bad(f"sigma_tol2 must be > 0, got {self.sigma_tol2}")
-        if not (finite(self.eps1) and self.eps1 >= 0):
-            bad(f"eps1 must be >= 0, got {self.eps1}")
+            check_config(self)
         return self
 
 

@@ -2,7 +2,6 @@
 how an agent trains its kernel is the agent's own setting, e.g. DGPQConfig's.)"""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Sequence, Tuple
 
@@ -22,34 +21,24 @@ class GPConfig:
     """GP model: backend, kernel, noise."""
     backend: str = setting("sparse", "GP backend: sparse (Csato-Opper, bounded budget) or exact",
                            choices=tuple(GP_BACKENDS), flag="gp")
-    noise_var: float = setting(0.1, "observation noise omega_n^2")
-    lengthscale: float = setting(0.05, "RBF bandwidth theta")
-    outputscale: float = setting(1.0, "RBF amplitude s_f^2")
-    budget: int = setting(100, "sparse GP: basis-vector budget")
-    novelty_tol: float = setting(1e-3, "sparse GP: novelty above which a point extends the basis")
-    capacity: int = setting(64, "exact GP: initial points of storage per GP (doubles when full)")
+    noise_var: float = setting(0.1, "observation noise omega_n^2", within="(0, inf)")
+    lengthscale: float = setting(0.05, "RBF bandwidth theta", within="(0, inf)")
+    outputscale: float = setting(1.0, "RBF amplitude s_f^2", within="(0, inf)")
+    budget: int = setting(100, "sparse GP: basis-vector budget", within="[1, inf)")
+    novelty_tol: float = setting(1e-3, "sparse GP: novelty above which a point extends the basis",
+                                 within="[0, inf)")
+    capacity: int = setting(64, "exact GP: initial points of storage per GP (doubles when full)",
+                            within="[1, inf)")
     kernel: str = setting("rbf", "rbf, or manifold: RBF on MLP features trained by NLL (needs gp exact)",
                           choices=KERNELS)
-    kernel_hidden: Tuple[int, ...] = setting((10,), "manifold: hidden widths, e.g. 10 or 16,16")
+    kernel_hidden: Tuple[int, ...] = setting((10,), "manifold: hidden widths, e.g. 10 or 16,16",
+                                             within="[1, inf)", length=(1, None))
     kernel_skip: bool = setting(True, "manifold: features x + MLP(x), starting as the RBF kernel "
                                       "(--no-kernel-skip: the plain MLP output)")
 
-    def check(self) -> "GPConfig":
-        """Raise ValueError (one line) for impossible values; returns self."""
-        for name in ("noise_var", "lengthscale", "outputscale"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {v}")
-        for name in ("budget", "capacity"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)}")
-        if not (math.isfinite(self.novelty_tol) and self.novelty_tol >= 0):
-            raise ValueError(f"novelty_tol must be >= 0, got {self.novelty_tol}")
-        if not self.kernel_hidden or min(self.kernel_hidden) < 1:
-            raise ValueError(f"kernel_hidden must be positive widths, got {self.kernel_hidden}")
+    def cross_check(self) -> None:
         if self.kernel == "manifold" and self.backend != "exact":
             raise ValueError("kernel 'manifold' trains on the GP's data, which only gp 'exact' keeps: use --gp exact")
-        return self
 
     def bytes_per_gp(self, dim: int) -> int:
         """Storage of one GP's state (float64), for refusing runs that cannot fit."""
