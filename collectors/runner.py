@@ -38,7 +38,9 @@ from .online import OnlineCollector
 
 CONFIG, EPISODES, STATUS, CHECKPOINT = "config.json", "episodes.csv", "status.json", "checkpoint.pt"
 RUN_FILES = (CONFIG, EPISODES, STATUS, CHECKPOINT)
-CHECKPOINT_FORMAT = 1
+# 2: GP state in the kernel-batch layout (gp/kernels.py) with its likelihood module; format 1
+# checkpoints are refused rather than loaded into renamed or reshaped fields
+CHECKPOINT_FORMAT = 2
 
 
 class RunError(ValueError):
@@ -221,7 +223,8 @@ class RunFolder:
         except Exception as err:  # a damaged file: say so in one line
             raise RunError(f"cannot read {path}: {err}") from None
         if state.get("format") != CHECKPOINT_FORMAT:
-            raise RunError(f"{path} has checkpoint format {state.get('format')}, this code reads {CHECKPOINT_FORMAT}")
+            raise RunError(f"{path} has checkpoint format {state.get('format')}, this code reads {CHECKPOINT_FORMAT}: "
+                           "it was written by an older version, which can resume it; or start the run again")
         return state
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+import torch
 
 from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS, resolve_config
@@ -215,3 +216,18 @@ def test_a_config_recorded_before_a_setting_existed_still_runs(tmp_path):
     del config["run"]["env_steps"]
     folder = RunFolder.create(str(tmp_path / "old"), "x")
     assert len(runner.start(config, folder, progress=False)) == 2
+
+
+def test_a_checkpoint_of_another_format_is_refused_in_one_line(tmp_path, capsys):
+    """Checkpoints written before the GP state's layout changed (format 1) must not load into the
+    new fields: --resume refuses them in one line, exit 2."""
+    out = tmp_path / "old"
+    assert run("--seeds", 1, "--episodes", 2, "--out", out) == 0
+    folder = RunFolder(out)
+    state = torch.load(folder.file("checkpoint.pt"), weights_only=True)
+    folder.save_checkpoint({**state, "format": 1})
+    folder.set_status("interrupted")
+    with pytest.raises(SystemExit) as exc:
+        train.main(["--resume", str(out), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and len(err.splitlines()) == 1 and "checkpoint format 1, this code reads 2" in err
