@@ -101,7 +101,11 @@ def split_overrides(settings: Dict[str, Any], env_cls, agent_cls) -> Dict[str, D
             places = [(s, find_leaf(cls, key)) for s, cls in owners.items()]
         places = [(s, leaf) for s, leaf in places if leaf is not None]
         if not places:
-            raise ValueError(f"unknown setting {key!r} for env {env_cls.__name__} and agent {agent_cls.__name__}")
+            last = key.rpartition(".")[2]
+            hint = f" (did you mean {last!r}?)" if last != key and any(
+                find_leaf(cls, last) for cls in owners.values()) else ""
+            raise ValueError(f"unknown setting {key!r} for env {env_cls.__name__} and agent {agent_cls.__name__}"
+                             + hint)
         if len(places) > 1:
             raise ValueError(f"setting {key!r} is ambiguous: say {' or '.join(s + '.' + key for s, _ in places)}")
         section, leaf = places[0]

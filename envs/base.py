@@ -67,6 +67,8 @@ class EnvInfo:
 
     def action_index(self, name: str) -> int:
         """Index of the discrete action called ``name``."""
+        if not self.action_names:
+            raise ValueError(f"this env does not name its actions: give an index instead of {name!r}")
         if name not in self.action_names:
             raise ValueError(f"this env has no action {name!r}; its actions are {list(self.action_names)}")
         return self.action_names.index(name)
@@ -75,7 +77,8 @@ class EnvInfo:
         """(low, high) of the observation, for covering numbers (Section 5)."""
         spec = self.observation_spec["observation"]
         if not isinstance(spec, Bounded):
-            raise ValueError("this env has no bounded state space for a covering number")
+            raise ValueError("this env's observations are unbounded, so Section 5 has no covering number from "
+                             "them: use covering unit-square, or give sigma_tol2 and eps1")
         return spec.space.low[0].tolist(), spec.space.high[0].tolist()
 
 
@@ -123,7 +126,7 @@ class SeedBatchedEnv(EnvBase):
         """The ``EnvInfo`` of this env with settings ``cfg`` (default: the defaults)."""
         cfg = cls.checked_config(cfg if cfg is not None else cls.Config())
         observation, action, _ = cls._specs(cfg, 1, device)
-        return EnvInfo(cfg, observation, action, tuple(cls.action_names), cls.action_hint, device)
+        return EnvInfo(cfg, observation, action, tuple(cls.action_names), cls.action_hint, torch.device(device))
 
     @property
     def info(self) -> EnvInfo:

@@ -353,6 +353,14 @@ def bench_imports(args):
     root = Path(args.checkout or Path(__file__).resolve().parent.parent).resolve()
     env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     py = [sys.executable]
+    # This venv's editable install maps trl_dgpq.envs and .collectors onto this checkout's folders;
+    # another checkout's are imported only where its trl_dgpq/ holds them (links to ../envs, ../collectors).
+    where = subprocess.run(py + ["-c", "import trl_dgpq.envs as e, trl_dgpq.collectors as c; "
+                                       "print(e.__file__); print(c.__file__)"],
+                           env=env, cwd=root, capture_output=True, text=True)
+    if where.returncode or not all(Path(f).resolve().is_relative_to(root) for f in where.stdout.split()):
+        sys.exit(f"bench.py imports: {root}'s envs/ and collectors/ are not the ones imported there; link them: "
+                 f"ln -s ../envs {root}/trl_dgpq/envs; ln -s ../collectors {root}/trl_dgpq/collectors")
     results = dict(checkout=str(root), load_average_start=os.getloadavg(), modules={})
     for module in IMPORTS:
         times = []

@@ -207,3 +207,11 @@ def test_help_gives_each_configs_default_for_a_shared_flag():
     text = " ".join(train.make_parser().format_help().split())
     assert "[DGPQ: 0.01; DDPG: 0.99; DQN: 0.99]" in text
     assert "Square: shaped {shaped, paper}; Liquidation: shortfall {shortfall, utility-ratio}" in text
+
+
+def test_an_old_dotted_path_names_the_setting_it_is_now():
+    """The kernel-training settings moved from gp to DGPQConfig: --set gp.kernel_lr=... is unknown
+    now, and the error says which name to use."""
+    with pytest.raises(ValueError, match=re.escape("unknown setting 'gp.kernel_lr'") + ".*did you mean 'kernel_lr'"):
+        resolve_config(**{"gp.kernel_lr": 0.1})
+    assert resolve_config(kernel_lr=0.1)["agent"]["kernel_lr"] == 0.1

@@ -76,13 +76,22 @@ def test_env_info_describes_the_env_without_building_one(domain):
     cls = env_class(name)
     info = cls.describe(with_overrides(cls.Config(), domain.example))
     env = example_env(domain, [0, 3])
+    one = example_env(domain, [3])
+    assert info.config == env.cfg and env.info == info
+    assert info.observation_spec == one.observation_spec and info.action_spec == one.action_spec
     assert info.observation_dim == env.observation_spec["observation"].shape[-1]
-    assert type(info.action_spec) is type(env.action_spec)
+    one.close()
     td = env.reset()
     assert set(info.keys) <= set(td.keys()) and "observation" in td.keys()
     if info.action_names:
         assert len(info.action_names) == info.num_actions()
     env.close()
+
+
+def test_an_id_is_taken_only_by_a_family(domain):
+    from trl_dgpq.envs import domain as lookup
+    with pytest.raises(ValueError, match="needs an id" if domain.takes_id else "takes no id"):
+        lookup(domain.name if domain.takes_id else f"{domain.name}:x")
 
 
 def test_a_seed_does_not_depend_on_its_batch(domain):

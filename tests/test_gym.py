@@ -149,6 +149,17 @@ def test_unusable_ids_are_refused_in_one_line(name, message):
     assert message.split(";")[0] in proc.stderr.strip().splitlines()[-1]
 
 
+def test_the_old_block_push_id_says_what_it_is_now():
+    """Before issue 17, importing the suite registered trl_dgpq/BlockPush-v0; now gymnasium's
+    "module:id" form does, and the old name says so (in a fresh process: here the adapter is
+    already imported)."""
+    from trl_dgpq.envs.gym.env import PUSH_GYM_ID
+    assert PUSH_GYM_ID == GYM_ID
+    proc = subprocess.run([sys.executable, str(TRAIN), "--env", "gym:trl_dgpq/BlockPush-v0", "--no-progress"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and f"the block-push id is now gym:{GYM_ID}" in proc.stderr.strip().splitlines()[-1]
+
+
 @pytest.mark.filterwarnings("ignore:.*out of date")
 def test_any_discrete_id_runs_with_defaults():
     cfg = resolve_config(env="gym:CartPole-v0", agent="random", seeds=[0], episodes=2)

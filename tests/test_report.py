@@ -4,7 +4,7 @@ import json
 import pandas as pd
 import pytest
 
-from trl_dgpq.analysis import at_budget, load_run, steps_to_threshold
+from trl_dgpq.analysis import at_budget, kernel_fits_per_seed, load_run, steps_to_threshold
 from trl_dgpq.analysis.report import fmt_band, fmt_steps, report
 from trl_dgpq.commands.report import main
 from trl_dgpq.envs import domain
@@ -67,7 +67,7 @@ def test_mountaincar_flag_and_groups(tmp_path):
 
 def test_bad_input_is_one_line(tmp_path, capsys):
     assert main([str(tmp_path)]) == 2
-    assert "not a finished run" in capsys.readouterr().err
+    assert "not a run folder" in capsys.readouterr().err
 
 
 def test_a_seed_with_nothing_within_the_budget_still_counts(tmp_path):
@@ -76,3 +76,25 @@ def test_a_seed_with_nothing_within_the_budget_still_counts(tmp_path):
     to = steps_to_threshold(df, CARTPOLE, budget=3000)
     assert to.tolist()[0] == 3000 and to.isna().tolist() == [False, True, False]
     assert fmt_band(at_budget(df, "return", 500, 10)) == "300 [300, 300] (1 seeds: no episode within the budget)"
+
+
+def test_kernel_fits_per_seed_is_each_seeds_count_averaged(tmp_path):
+    """kernel_fits is a running count per seed: seed 0 ends at 3, seed 1 at 4, so 3.5 per seed
+    (not the sum of the rows, nor of the seeds)."""
+    run = fake_run(tmp_path / "k", "square", {0: [30, 20, 20], 1: [25, 25, 20]}, agent="dgpq",
+                   env_cfg={"max_steps": 200})
+    df = pd.read_csv(run / "episodes.csv")
+    df["kernel_fits"] = [0, 1, 3, 2, 2, 4]
+    df.to_csv(run / "episodes.csv", index=False)
+    assert kernel_fits_per_seed(load_run(run).df) == 3.5
+    _, text = report([run], ["m"], tmp_path / "out")
+    assert "| m | 2 | " in text and "| 3.5 |" in text
+
+
+def test_plot_draws_a_folder_without_its_config(tmp_path):
+    """An episodes.csv alone (copied out of a run folder) still gets the generic figures."""
+    from trl_dgpq.commands import plot
+    run = fake_run(tmp_path / "bare", "square", {0: [30, 20], 1: [25, 25]})
+    (run / "config.json").unlink()
+    assert plot.main([str(run)]) == 0
+    assert (run / "steps_per_episode.png").is_file() and (run / "time_per_step.png").is_file()

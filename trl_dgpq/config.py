@@ -92,7 +92,8 @@ def check_value(key: str, meta, value) -> None:
         if len(items) < fewest or (most is not None and len(items) > most):
             count = (f"{fewest}" if fewest == most else f"at least {fewest}" if most is None
                      else f"{fewest} to {most}")
-            raise ValueError(f"{key} needs {count} values, got {items}")
+            one = (most if most is not None else fewest) == 1
+            raise ValueError(f"{key} needs {count} value{'' if one else 's'}, got {items}")
     if within is not None and not all(v in within for v in (items if items is not None else [value])):
         raise ValueError(f"{key} must {'each ' if items is not None else ''}be {within}, got "
                          f"{items if items is not None else value}")

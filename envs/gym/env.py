@@ -41,6 +41,8 @@ from torchrl.envs import GymEnv
 from trl_dgpq.config import check_config, setting
 
 from ..base import SeedBatchedEnv
+# the block-push id in gymnasium's "module:id" form (gymnasium imports the module, which registers it)
+PUSH_GYM_ID = "trl_dgpq.envs.push.gym_adapter:trl_dgpq/BlockPush-v0"
 # envs whose whole state is plain Python attributes, so a pickle of them is exact
 CHECKPOINTABLE = ("gymnasium.envs.classic_control", "gymnasium.envs.toy_text")
 
@@ -85,7 +87,9 @@ def describe(gym_id: str):
     except ImportError as e:
         raise ValueError(f"gym:{gym_id}: cannot import {module}: {e}") from None
     except gymnasium.error.Error as e:
-        raise ValueError(f"unknown gymnasium id gym:{gym_id}: {e}") from None
+        hint = (f"; the block-push id is now gym:{PUSH_GYM_ID}" if name.startswith("trl_dgpq/") and not module
+                else "")
+        raise ValueError(f"unknown gymnasium id gym:{gym_id}: {e}{hint}") from None
     try:
         env = gymnasium.make(gym_id)
     except (gymnasium.error.Error, TypeError, ImportError) as e:  # e.g. a simulator that is not installed

@@ -6,6 +6,7 @@ import json
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import Optional
 
 import pandas as pd
 
@@ -23,7 +24,7 @@ class Run:
     ``env_steps``) and its config."""
     path: Path
     df: pd.DataFrame
-    config: dict
+    config: Optional[dict]  # None for a folder without config.json (load_run(..., need_config=False))
 
     @property
     def env(self) -> str:
@@ -44,8 +45,9 @@ class Run:
 
     @cached_property
     def domain(self):
+        """The run's ``Domain`` (None without a config)."""
         from trl_dgpq.envs import domain
-        return domain(self.env)
+        return None if self.config is None else domain(self.env)
 
     @property
     def env_id(self):
@@ -53,13 +55,14 @@ class Run:
         return split_name(self.env)[1]
 
 
-def load_run(folder) -> Run:
-    """The run in ``folder``; ValueError (one line) if it holds none."""
+def load_run(folder, need_config: bool = True) -> Run:
+    """The run in ``folder`` (finished or not); ValueError (one line) if it holds none.
+    Without ``need_config``, episodes.csv alone will do (``Run.config`` is then None)."""
     folder = Path(folder)
     configs = [folder / "config.json"] + sorted((folder / "jobs").glob("*/config.json"))
     config = next((c for c in configs if c.exists()), None)
-    if config is None or not (folder / "episodes.csv").exists():
-        raise ValueError(f"{folder} is not a finished run (needs episodes.csv and a config.json)")
+    if not (folder / "episodes.csv").exists() or (config is None and need_config):
+        raise ValueError(f"{folder} is not a run folder (needs episodes.csv and a config.json)")
     df = read_csv_exact(folder / "episodes.csv").sort_values(["seed", "episode"], kind="stable")
     df["env_steps"] = df.groupby("seed")["steps"].cumsum()
-    return Run(folder, df.reset_index(drop=True), json.loads(config.read_text()))
+    return Run(folder, df.reset_index(drop=True), None if config is None else json.loads(config.read_text()))

@@ -51,13 +51,13 @@ def main(argv=None) -> int:
     if len(labels) != len(args.runs):
         p.error("give one label per run")
     try:
-        runs = [load_run(r) for r in args.runs]
+        runs = [load_run(r, need_config=False) for r in args.runs]
     except ValueError as err:
         p.error(str(err))
     out = Path(args.out or args.runs[0])
     out.mkdir(parents=True, exist_ok=True)
-    domains = {run.domain.name for run in runs}
-    own = getattr(runs[0].domain.analysis(), "figures", None) if len(domains) == 1 else None
+    domains = {run.domain and run.domain.name for run in runs}  # None: a run without its config.json
+    own = getattr(runs[0].domain.analysis(), "figures", None) if len(domains) == 1 and None not in domains else None
     if own is not None:
         written = own(runs, labels, out, block=args.block, last=args.last)
     else:
