@@ -34,26 +34,24 @@ class _LastGood:
         self.items = [(t, per_gp, t.detach().clone()) for t, per_gp in tensors]
         self.rows = rows
 
-    @torch.no_grad()
     def save(self, which: torch.Tensor) -> None:
         """Remember the current values of the GPs ``which`` (a mask over rows)."""
-        r = self.rows[which]
-        for t, per_gp, good in self.items:
-            if per_gp:
-                good[r] = t[r]
-            else:
-                good.copy_(t)
+        self._copy(which, to_good=True)
 
-    @torch.no_grad()
     def restore(self, which: torch.Tensor) -> None:
         """Put the GPs ``which`` back to their last good values (a shared tensor: all)."""
         if which.any():
-            r = self.rows[which]
-            for t, per_gp, good in self.items:
-                if per_gp:
-                    t[r] = good[r]
-                else:
-                    t.copy_(good)
+            self._copy(which, to_good=False)
+
+    @torch.no_grad()
+    def _copy(self, which: torch.Tensor, to_good: bool) -> None:
+        r = self.rows[which]
+        for t, per_gp, good in self.items:
+            dst, src = (good, t) if to_good else (t, good)
+            if per_gp:
+                dst[r] = src[r]
+            else:
+                dst.copy_(src)
 
 
 def fit(gp: ExactGP, mask: Optional[torch.Tensor] = None, steps: int = 100, lr: float = 0.01,
