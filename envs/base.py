@@ -31,8 +31,8 @@ from trl_dgpq.rng import ENV_STREAM, SeedStreams
 class EnvInfo:
     """What an agent may know of an env, from its class and config alone: the specs of
     one seed, the names of what each step's TensorDict holds beside the observation,
-    and the names of discrete actions. Resolution, the memory estimate and the run
-    share one (no env is built to learn these)."""
+    and the names of discrete actions. Resolution, the memory estimate and the run each
+    make it the same way, from the config (``describe``), never from a built env."""
     config: Any                       # the env's checked Config
     observation_spec: Composite       # one seed's (shape (1, ...))
     action_spec: Any

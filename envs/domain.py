@@ -52,7 +52,7 @@ class Domain:
 
     # ------------------------------------------------------------ the env
     def env_class(self, env_id: Optional[str] = None) -> type:
-        self.check_id(env_id)
+        """The env class (``env_id`` as ``envs.domain()`` checked it)."""
         return self.module("env").Env
 
     def config_class(self) -> type:

@@ -12,7 +12,6 @@ class GymDomain(Domain):
     takes_id = True
 
     def env_class(self, env_id: Optional[str] = None) -> type:
-        self.check_id(env_id)
         return self.module("env").gym_env(env_id)
 
     def examples(self):

@@ -41,6 +41,7 @@ from torchrl.envs import GymEnv
 from trl_dgpq.config import check_config, setting
 
 from ..base import SeedBatchedEnv
+
 # the block-push id in gymnasium's "module:id" form (gymnasium imports the module, which registers it)
 PUSH_GYM_ID = "trl_dgpq.envs.push.gym_adapter:trl_dgpq/BlockPush-v0"
 # envs whose whole state is plain Python attributes, so a pickle of them is exact
@@ -140,13 +141,12 @@ class GymSeedEnv(SeedBatchedEnv):
         return torch.tensor(low), torch.tensor(high)
 
     def __init__(self, seeds=(0,), cfg: GymConfig | None = None, device="cpu", **overrides):
-        cfg = self.checked_config(replace(cfg if cfg is not None else GymConfig(), **overrides))
-        self.low, self.high = self.bounds(cfg)
+        super().__init__(seeds, cfg, device, **overrides)  # checks and completes the config (checked_config)
+        self.low, self.high = self.bounds(self.cfg)
         self.squash = ~(torch.isfinite(self.low) & torch.isfinite(self.high))
         # x -> (x - offset) / span on bounded dimensions, fixed for the env's life
         self.offset = torch.where(self.squash, 0.0, self.low)
         self.span = torch.where(self.squash, 1.0, self.high - self.low)
-        super().__init__(seeds, cfg, device)
         self.envs = []
         try:
             for _ in self.seeds:

@@ -48,8 +48,4 @@ def agent_class(name: str, env: Optional[str] = None) -> type:
     return owner.baseline(name)
 
 
-def make_agent(name: str, cfg, info, seeds, env: Optional[str] = None):
-    return agent_class(name, env).make(cfg, info, seeds)
-
-
-__all__ = ["AGENTS", "agent_class", "agent_names", "baselines", "check_agent_name", "make_agent"]
+__all__ = ["AGENTS", "agent_class", "agent_names", "baselines", "check_agent_name"]
