@@ -1,72 +1,149 @@
-"""DDPG from TorchRL parts: seeds independent, its own random streams, the course's sizes."""
-import pandas as pd
+"""DDPG from TorchRL parts: the course's sizes, OU noise from each seed's own stream, and
+the `course` settings (each of the course agent's four choices) against hand computations.
+(Seed independence and the shared parts: test_neural.py.)"""
+import math
+
 import pytest
 import torch
-from torchrl.data import LazyTensorStorage
-from torchrl.modules import OrnsteinUhlenbeckProcessModule
+from tensordict import TensorDict
+from torchrl.data import Bounded, LazyTensorStorage
 from torchrl.objectives import DDPGLoss, SoftUpdate
 
-from trl_dgpq.collectors.experiment import TIMING_COLUMNS, build, resolve_config, run_experiment
+from trl_dgpq.agents.ddpg import DDPG, DDPGConfig
+from trl_dgpq.collectors.experiment import build, resolve_config
 from trl_dgpq.collectors.online import OnlineCollector
+from trl_dgpq.rng import SeedStreams, stream_id
 
 SMALL = dict(env="liquidation", agent="ddpg", trades=15, batch_size=8, buffer_size=100, episodes=4)
-
-
-def test_seed_alone_equals_seed_in_a_batch():
-    both = run_experiment(resolve_config(seeds=[0, 1], **SMALL), progress=False)
-    alone = run_experiment(resolve_config(seeds=[1], **SMALL), progress=False)
-    assert both.updates.max() > 10  # learning happened
-    pd.testing.assert_frame_equal(both[both.seed == 1].reset_index(drop=True).drop(columns=list(TIMING_COLUMNS)),
-                                  alone.drop(columns=list(TIMING_COLUMNS)))
-    assert not both[both.seed == 0]["return"].equals(both[both.seed == 1]["return"].reset_index(drop=True))
-
-
-def test_learners_leave_torchs_global_generator_alone():
-    torch.manual_seed(123)
-    expected = torch.rand(4)
-    torch.manual_seed(123)
-    env, agent = build(resolve_config(seeds=[0, 1], **SMALL))
-    OnlineCollector(env, agent, 2, progress=False).run()
-    assert torch.equal(torch.rand(4), expected)
+BOX = Bounded(torch.zeros(1), torch.ones(1), shape=(1,))
 
 
 def test_built_from_torchrl_parts_with_the_course_sizes():
-    env, agent = build(resolve_config(env="liquidation", agent="ddpg", seeds=[0]))
-    learner = agent.learners[0]
-    assert isinstance(learner.loss, DDPGLoss) and isinstance(learner.target, SoftUpdate)
-    assert isinstance(learner.ou, OrnsteinUhlenbeckProcessModule)
-    assert isinstance(learner.buffer._storage, LazyTensorStorage) and learner.buffer._storage.max_size == 10_000
-    widths = [m.out_features for m in learner.actor.modules() if isinstance(m, torch.nn.Linear)]
-    assert widths == [24, 48, 1]
+    env, agent = build(resolve_config(env="liquidation", agent="ddpg", seeds=[0, 1]))
+    assert isinstance(agent.loss, DDPGLoss) and isinstance(agent.target, SoftUpdate)
+    assert isinstance(agent.replay.storage, LazyTensorStorage) and agent.replay.capacity == 10_000
+    actor = agent.loss.actor_network_params.flatten_keys(".")
+    widths = [tuple(v.shape) for k, v in actor.items() if k.endswith("weight")]
+    assert widths == [(2, 24, 8), (2, 48, 24), (2, 1, 48)]  # two seeds' 8 -> 24 -> 48 -> 1
     a = agent.act(env.reset())
-    assert a.shape == (1, 1) and 0 <= float(a) <= 1
+    assert a.shape == (2, 1) and a.dtype == torch.float64 and ((0 <= a) & (a <= 1)).all()
+
+
+def ou_trace(cfg, seeds, new_episode_at=(), steps=6):
+    """The agent's noise after each act, new episodes flagged at the given steps."""
+    agent = DDPG(cfg, seeds, 3, BOX)
+    td = TensorDict({"observation": torch.rand(len(seeds), 3)}, batch_size=[len(seeds)])
+    out = []
+    for t in range(steps):
+        agent.new_episode[:] = t == 0 or t in new_episode_at
+        agent.act(td)
+        out.append(agent.noise.clone())
+    return out
+
+
+@pytest.mark.parametrize("kind, reset", [("normal", True), ("uniform", False), ("uniform", True)])
+def test_ou_noise_by_hand(kind, reset):
+    """x_t = x_{t-1} + theta (0 - x_{t-1}) + sigma d_t with d_t the seed's own N(0, 1) or U[0, 1)
+    draws, x restarting from 0 at a new episode only if ou_reset."""
+    cfg = DDPGConfig(ou_theta=0.3, ou_sigma=0.5, ou_noise=kind, ou_reset=reset)
+    got = ou_trace(cfg, [2, 5], new_episode_at=(3,))
+    rng = SeedStreams([2, 5], stream_id("ddpg.ou"))
+    x = torch.zeros(2, 1, dtype=torch.float64)
+    for t, g in enumerate(got):
+        if t == 3 and reset:
+            x = torch.zeros_like(x)
+        d = rng.uniform(1) if kind == "uniform" else rng.normal(1)
+        x = x - 0.3 * x + 0.5 * d
+        torch.testing.assert_close(g.double(), x, rtol=1e-5, atol=1e-6)
+
+
+def test_course_noise_drifts_to_sigma_over_two_theta():
+    """Uniform increments: the noise's long-run mean is sigma E[U] / theta = 0.2 * 0.5 / 0.15 = 0.667
+    (the course's bias towards selling), the normal one's is 0."""
+    for kind, mean in (("uniform", 0.2 * 0.5 / 0.15), ("normal", 0.0)):
+        trace = torch.stack(ou_trace(DDPGConfig(ou_noise=kind, ou_reset=False), list(range(64)), steps=200)[50:])
+        assert abs(float(trace.mean()) - mean) < 0.03
+
+
+def test_course_initial_weights_use_out_features():
+    """Hidden weights in +-1/sqrt(out_features) (torch's default is +-1/sqrt(in_features): 8 inputs
+    would give 0.35, not 0.20), output layers in +-3e-3."""
+    agent = DDPG(DDPGConfig(init="course"), list(range(4)), 8, BOX)
+    params = {**agent.loss.actor_network_params.flatten_keys(".").to_dict(),
+              **agent.loss.value_network_params.flatten_keys(".").to_dict()}
+    weights = {k: v for k, v in params.items() if k.endswith("weight")}
+    assert len(weights) == 6
+    for k, w in weights.items():
+        out = w.shape[1]
+        lim = 3e-3 if out == 1 else 1 / math.sqrt(out)
+        assert w.abs().max() <= lim and w.abs().max() > 0.9 * lim, k
+    default = DDPG(DDPGConfig(), list(range(4)), 8, BOX).loss.actor_network_params.flatten_keys(".")
+    first = [v for k, v in default.items() if k.endswith("0.weight")][0]
+    assert first.abs().max() > 1 / math.sqrt(24)
+
+
+def batch_of(n, S=1, obs_dim=3, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    f = lambda *s: torch.rand(*s, generator=g)  # noqa: E731
+    flag = torch.zeros(n, S, 1, dtype=torch.bool)
+    return TensorDict({"observation": f(n, S, obs_dim), "action": f(n, S, 1),
+                       "next": {"observation": f(n, S, obs_dim), "reward": f(n, S, 1), "done": flag,
+                                "terminated": flag.clone()}}, batch_size=[n, S])
+
+
+def test_critic_then_actor_steps_the_actor_against_the_updated_critic():
+    """The course's order by hand, from TorchRL's loss terms: a critic step on the value loss,
+    then an actor step on the actor loss evaluated with the updated critic, then the soft
+    update -- three times. `critic-then-actor` equals it; `joint` (both gradients at the old
+    critic) does not."""
+    batches = [batch_of(16, seed=k) for k in range(3)]
+    by_hand = DDPG(DDPGConfig(), [0], 3, BOX)
+    for b in batches:
+        for optim, term in ((by_hand.critic_optim, by_hand.loss.loss_value), (by_hand.actor_optim,
+                                                                              by_hand.loss.loss_actor)):
+            optim.zero_grad()
+            term(b.clone())[0].mean().backward()
+            optim.step()
+        by_hand.target.step()
+    for update, same in (("critic-then-actor", True), ("joint", False)):
+        agent = DDPG(DDPGConfig(update=update), [0], 3, BOX)
+        for b in batches:
+            agent.update(b.clone())
+        actor = agent.loss.actor_network_params.flatten_keys(".")
+        ref = by_hand.loss.actor_network_params.flatten_keys(".")
+        assert all(torch.equal(actor[k], ref[k]) for k in ref.keys()) == same, update
+        critic = agent.loss.value_network_params.flatten_keys(".")
+        assert all(torch.equal(critic[k], by_hand.loss.value_network_params.flatten_keys(".")[k])
+                   for k in critic.keys())  # the critic's steps are the same either way
+
+
+@pytest.mark.parametrize("above, first_update", [(False, 8), (True, 9)])
+def test_learning_starts_with_a_minibatch_or_more_than_one(above, first_update):
+    agent = DDPG(DDPGConfig(batch_size=8, start_above_batch=above), [0], 3, BOX)
+    counts = []
+    for t in range(10):
+        agent.observe(batch_of(1, seed=t)[0])
+        counts.append(int(agent.updates[0]))
+    assert counts.index(1) + 1 == first_update
 
 
 def test_exploration_noise_restarts_each_episode():
     env, agent = build(resolve_config(seeds=[0], **SMALL))
     col = OnlineCollector(env, agent, 1, progress=False)
     col.run()
-    assert int(agent.learners[0].noise["_ou_steps"]) > 1
-    agent.act(col.td)  # the first step of the next episode
-    assert int(agent.learners[0].noise["_ou_steps"]) == 1
+    assert bool(agent.new_episode[0])
+    rng = SeedStreams([0], stream_id("ddpg.ou"))
+    rng.counter = agent.noise_rng.counter
+    agent.act(col.td)  # the first step of the next episode: 0 + sigma N(0, 1)
+    assert float(agent.noise[0, 0]) == pytest.approx(0.2 * float(rng.normal(1)[0, 0]), rel=1e-6)
 
 
 @pytest.mark.parametrize("settings, match", [
     (dict(env="liquidation", action_levels=21), "action_levels=0"),
     (dict(env="square"), "continuous"),
     (dict(env="liquidation", batch_size=200, buffer_size=100), "batch_size"),
+    (dict(env="liquidation", ou_noise="gauss"), "ou_noise"),
 ])
 def test_refused_settings(settings, match):
     with pytest.raises(ValueError, match=match):
         resolve_config(agent="ddpg", **settings)
-
-
-def test_each_seed_draws_its_own_exploration_noise():
-    """The first OU draw of an episode (previous noise 0) is sigma * N(0, 1) from the
-    learner's own generator: different for different seeds, and the generators move."""
-    env, agent = build(resolve_config(seeds=[0, 1], **SMALL))
-    before = [learner.generator_state.clone() for learner in agent.learners]
-    agent.act(env.reset())
-    noise = [float(learner.noise["_ou_prev_noise"]) for learner in agent.learners]
-    assert noise[0] != noise[1]
-    assert all(not torch.equal(b, learner.generator_state) for b, learner in zip(before, agent.learners))

@@ -1,12 +1,15 @@
 """DQN from TorchRL parts: its schedule (learning starts, train frequency, epsilon, target
-copies) by hand count, its TD target by hand, seeds independent, refusals."""
+copies) by hand count, its TD target by hand, greedy actions from each seed's own
+network, refusals. (Seed independence and the shared parts: test_neural.py.)"""
 import pytest
 import torch
 from tensordict import TensorDict
+from torch import nn
+from torchrl.modules import MLP
 
-from trl_dgpq.agents.dqn import DQNConfig, Learner
-from trl_dgpq.collectors.experiment import build, resolve_config
-from trl_dgpq.collectors.online import OnlineCollector
+from trl_dgpq.agents.dqn import DQN, DQNConfig
+from trl_dgpq.agents.neural import build_per_seed
+from trl_dgpq.collectors.experiment import resolve_config
 
 
 def transition(obs_dim=3, n=1, terminated=False):
@@ -16,19 +19,19 @@ def transition(obs_dim=3, n=1, terminated=False):
                                 "done": flag, "terminated": flag.clone()}}, batch_size=[n])
 
 
-def trace(cfg, steps, read):
-    """``read(learner)`` after each of ``steps`` transitions given to a fresh learner."""
-    learner = Learner(cfg, 3, 2, 0)
+def trace(cfg, steps, read, seeds=(0,)):
+    """``read(agent)`` after each of ``steps`` transitions given to a fresh agent."""
+    agent = DQN(cfg, list(seeds), 3, 2)
     out = []
     for _ in range(steps):
-        learner.learn(transition())
-        out.append(read(learner))
+        agent.observe(transition(n=len(seeds)))
+        out.append(read(agent))
     return out
 
 
-def target_equals_online(learner):
-    online = learner.loss.value_network_params.flatten_keys()
-    target = learner.loss.target_value_network_params.flatten_keys()
+def target_equals_online(agent):
+    online = agent.loss.value_network_params.flatten_keys()
+    target = agent.loss.target_value_network_params.flatten_keys()
     return all(torch.equal(online[k], target[k]) for k in online.keys())
 
 
@@ -37,7 +40,7 @@ def test_updates_start_and_repeat_on_schedule():
     (multiples of 3 once 10 transitions are stored), two each."""
     cfg = DQNConfig(hidden=(8,), batch_size=4, buffer_size=50, learning_starts=10, train_freq=3, gradient_steps=2,
                     target_update_interval=1000)
-    counts = trace(cfg, 20, lambda learner: learner.updates)
+    counts = trace(cfg, 20, lambda agent: int(agent.updates[0]))
     expect = [2 * sum(1 for k in range(1, n + 1) if k % 3 == 0 and k >= 10) for n in range(1, 21)]
     assert counts == expect and counts[-1] == 6
 
@@ -46,14 +49,24 @@ def test_no_update_before_a_minibatch_is_stored():
     """learning_starts 0, batch 4, every step: the first update is at step 4 (not from one stored
     transition sampled four times)."""
     cfg = DQNConfig(hidden=(8,), batch_size=4, buffer_size=50, learning_starts=0, train_freq=1, gradient_steps=1)
-    assert trace(cfg, 8, lambda learner: learner.updates) == [0, 0, 0, 1, 2, 3, 4, 5]
+    assert trace(cfg, 8, lambda agent: int(agent.updates[0])) == [0, 0, 0, 1, 2, 3, 4, 5]
 
 
 def test_epsilon_falls_linearly_then_stays():
     cfg = DQNConfig(hidden=(8,), batch_size=4, buffer_size=50, learning_starts=1000, eps_init=1.0, eps_end=0.2,
                     exploration_steps=8)
-    eps = trace(cfg, 12, lambda learner: round(float(learner.explore.eps), 6))
+    eps = trace(cfg, 12, lambda agent: round(agent.eps, 12))
     assert eps == [0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.2, 0.2, 0.2, 0.2]
+
+
+def test_exploration_takes_random_actions_at_the_rate_epsilon():
+    """eps = 0.3 throughout: about 30% of actions are not the greedy one's... half of them
+    (two actions: a random pick is the greedy one half the time), and every action occurs."""
+    agent = DQN(DQNConfig(hidden=(8,), eps_init=0.3, eps_end=0.3), list(range(200)), 3, 2)
+    td = TensorDict({"observation": torch.rand(200, 3)}, batch_size=[200])
+    greedy = agent.greedy(td["observation"])
+    differ = torch.stack([agent.act(td) != greedy for _ in range(50)]).double().mean()
+    assert abs(float(differ) - 0.15) < 0.01
 
 
 def test_target_network_copies_every_interval_steps():
@@ -66,38 +79,32 @@ def test_target_network_copies_every_interval_steps():
 
 
 def test_td_target_by_hand():
-    """The loss is the Huber loss of Q(s, a) - (r + gamma (1 - terminated) max_a' Q_target(s', a'))."""
-    cfg = DQNConfig(hidden=(8,), gamma=0.7, batch_size=4, buffer_size=10)
-    learner = Learner(cfg, 3, 2, 0)
-    batch = torch.cat([transition(terminated=False, n=3), transition(terminated=True, n=2)])
+    """Per element: the Huber loss of Q(s, a) - (r + gamma (1 - terminated) max_a' Q_target(s', a')),
+    seed 1's from seed 1's own networks."""
+    agent = DQN(DQNConfig(hidden=(8,), gamma=0.7, batch_size=4, buffer_size=10), [3, 8], 3, 2)
+    batch = torch.stack([torch.cat([transition(n=3), transition(terminated=True, n=2)]) for _ in range(2)], 1)
     with torch.no_grad():
-        learner.loss.target_value_network_params.apply_(lambda p: p.mul_(0.5))  # target != online
-    loss = learner.loss(batch.clone())["loss"]
-    online = learner.actor[0]
-    with learner.loss.target_value_network_params.to_module(learner.actor):
-        q_next = learner.actor[0](batch["next", "observation"]).max(-1).values
+        agent.loss.target_value_network_params.apply_(lambda p: p.mul_(0.5))  # target != online
+    loss = agent.loss(batch.clone())["loss"]  # (B, S)
+    online = build_per_seed(lambda: MLP(in_features=3, out_features=2, num_cells=[8], activation_class=nn.ReLU),
+                            [8])[0]
+    target = build_per_seed(lambda: MLP(in_features=3, out_features=2, num_cells=[8], activation_class=nn.ReLU),
+                            [8])[0].apply(lambda m: [p.data.mul_(0.5) for p in m.parameters(recurse=False)])
+    b = batch[:, 1]
     with torch.no_grad():
-        q = online(batch["observation"]).gather(-1, batch["action"][:, None])[:, 0]
-        y = batch["next", "reward"][:, 0] + 0.7 * (~batch["next", "terminated"][:, 0]) * q_next
-    assert loss.item() == pytest.approx(torch.nn.functional.smooth_l1_loss(q, y).item(), rel=1e-5)
+        q = online(b["observation"]).gather(-1, b["action"][:, None])[:, 0]
+        y = b["next", "reward"][:, 0] + 0.7 * (~b["next", "terminated"][:, 0]) * target(b["next", "observation"]).max(-1).values
+        expect = torch.nn.functional.smooth_l1_loss(q, y, reduction="none")
+    torch.testing.assert_close(loss[:, 1], expect, rtol=1e-5, atol=1e-7)
 
 
-def test_greedy_action_is_the_argmax():
-    learner = Learner(DQNConfig(hidden=(8,), eps_init=0.0, eps_end=0.0), 3, 4, 0)
-    obs = torch.rand(1, 3)
+def test_greedy_action_is_the_argmax_of_the_seeds_own_network():
+    agent = DQN(DQNConfig(hidden=(8,), eps_init=0.0, eps_end=0.0), [4, 9], 3, 4)
+    obs = torch.rand(2, 3)
+    nets = build_per_seed(lambda: MLP(in_features=3, out_features=4, num_cells=[8], activation_class=nn.ReLU), [4, 9])
     with torch.no_grad():
-        expect = learner.actor[0](obs).argmax(-1)
-    assert torch.equal(learner.act(obs, False), expect)
-
-
-def test_learners_leave_torchs_global_generator_alone():
-    torch.manual_seed(5)
-    expected = torch.rand(3)
-    torch.manual_seed(5)
-    env, agent = build(resolve_config(agent="dqn", seeds=[0, 1], episodes=2, batch_size=8, learning_starts=8,
-                                      hidden=(8,), max_steps=20))
-    OnlineCollector(env, agent, 2, progress=False).run()
-    assert torch.equal(torch.rand(3), expected)
+        expect = torch.stack([nets[i](obs[i]).argmax(-1) for i in range(2)])
+    assert torch.equal(agent.act(TensorDict({"observation": obs}, batch_size=[2])), expect)
 
 
 def test_continuous_actions_are_refused():

@@ -1,18 +1,29 @@
 """DDPG (Lillicrap et al. 2016) as the course had it (SPEC 3.2), assembled from TorchRL:
-``DDPGLoss`` (TD(0) targets from target networks), ``SoftUpdate``, ``ReplayBuffer``
-with ``LazyTensorStorage``, ``OrnsteinUhlenbeckProcessModule``, ``Actor`` (an ``MLP``
-then ``TanhModule`` onto the action box) and ``ValueOperator``.
+``DDPGLoss`` (TD(0) targets from target networks), ``SoftUpdate``, an ``Actor``-style
+``MLP`` then ``TanhModule`` onto the action box, and ``ValueOperator``; Ornstein-
+Uhlenbeck exploration noise added to the action and clipped to the box.
 
-One learner per seed (``neural.PerSeedLearners``: why, and how each keeps its own
-random stream).
+All seeds learn as one (``neural``: networks stacked over seeds, per-seed losses,
+replay and random streams). The OU noise is drawn from each seed's own stream, so
+TorchRL's ``OrnsteinUhlenbeckProcessModule`` (torch's global generator) is replaced
+by its three lines: x <- x + theta (mu - x) dt + sigma sqrt(dt) N(0, 1), mu = 0.
 
-Per step, for each active seed: act (actor + OU noise, reset at each episode's
-start), store the transition, and once the buffer holds a batch, one gradient step
-on the critic (lr ``critic_lr``) and the actor (``actor_lr``) and a soft update of
-both target networks.
+Per env step of the active seeds: act, store the transition, and once the memory
+holds a minibatch, one gradient step on the critic (lr ``critic_lr``) and the actor
+(``actor_lr``) and a soft update of both target networks.
+
+``course`` settings reproduce the course's own agent (Udacity's finance DDPG, the seed
+report's baseline), each a choice it made that the default corrects:
+``ou_noise="uniform"`` (it drew U[0, 1), not N(0, 1): mean-reverting to sigma / (2 theta),
+not 0), ``ou_reset=False`` (never reset between episodes), ``init="course"`` (hidden
+weights uniform in +-1/sqrt(out_features) -- it took the fan-in from the wrong side --,
+output layers +-3e-3), ``update="critic-then-actor"`` (the actor's step is taken
+against the critic just updated) and ``start_above_batch`` (learning starts with more
+than a minibatch stored).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Sequence, Tuple
 
@@ -20,12 +31,13 @@ import torch
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
-from torchrl.data import Bounded, LazyTensorStorage, ReplayBuffer
-from torchrl.modules import MLP, OrnsteinUhlenbeckProcessModule, TanhModule, ValueOperator
+from torchrl.data import Bounded
+from torchrl.modules import MLP, TanhModule, ValueOperator
 from torchrl.objectives import DDPGLoss, SoftUpdate
 
 from ..config import setting
-from .neural import PerSeedLearners, TorchLearner
+from ..rng import SeedStreams, stream_id
+from .neural import SeedBatchedLearner, SeedStack, build_per_seed, seed_mean
 
 
 @dataclass
@@ -42,8 +54,17 @@ class DDPGConfig:
     buffer_size: int = setting(10_000, "replay buffer capacity (transitions per seed)", within="[1, inf)")
     batch_size: int = setting(128, "minibatch; learning starts once the buffer holds this many", within="[1, inf)")
     ou_theta: float = setting(0.15, "OU exploration noise theta", within="[0, inf)")
-    ou_sigma: float = setting(0.2, "OU exploration noise sigma", within="[0, inf)")
+    ou_sigma: float = setting(0.2, "OU exploration noise sigma (in the action box's units)", within="[0, inf)")
     ou_dt: float = setting(1.0, "OU time step (1: x += theta (mu - x) + sigma N(0, 1))", within="(0, inf)")
+    ou_noise: str = setting("normal", "OU increments: normal N(0, 1), or uniform U[0, 1) as the course drew them",
+                            choices=("normal", "uniform"))
+    ou_reset: bool = setting(True, "reset the OU noise to 0 at each episode's start (the course never did)")
+    init: str = setting("torch", "initial weights: torch's defaults, or the course's (hidden +-1/sqrt(out_features), "
+                        "output +-3e-3)", choices=("torch", "course"))
+    update: str = setting("joint", "one step on both losses, or the critic's step then the actor's against the "
+                          "updated critic (the course)", choices=("joint", "critic-then-actor"))
+    start_above_batch: bool = setting(False, "learn once the buffer holds more than (the course), not at least, "
+                                      "a minibatch")
 
     def cross_check(self) -> None:
         if self.buffer_size < self.batch_size:
@@ -51,89 +72,111 @@ class DDPGConfig:
 
 
 class Critic(nn.Module):
-    """Q(s, a): state -> hidden[0] (ReLU), concatenate the action -> hidden[1] (ReLU) -> 1."""
+    """Q(s, a): state -> hidden[0] (ReLU), concatenate the action -> hidden[1] (ReLU) -> 1.
+    Takes [observation, action] concatenated (``SeedStack`` concatenates its inputs)."""
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: Tuple[int, int]):
         super().__init__()
+        self.obs_dim = obs_dim
         self.state = nn.Sequential(nn.Linear(obs_dim, hidden[0]), nn.ReLU())
         self.head = MLP(in_features=hidden[0] + act_dim, out_features=1, num_cells=[hidden[1]],
                         activation_class=nn.ReLU)
 
-    def forward(self, observation, action):
+    def forward(self, observation_action):
+        observation, action = observation_action[..., :self.obs_dim], observation_action[..., self.obs_dim:]
         return self.head(torch.cat([self.state(observation), action], -1))
 
 
-class Learner(TorchLearner):
-    """One seed's DDPG: networks, loss, optimisers, replay buffer and OU state."""
-
-    def __init__(self, cfg: DDPGConfig, obs_dim: int, box: Bounded, torch_seed: int):
-        super().__init__(torch_seed)
-        low, high = box.space.low[0].float(), box.space.high[0].float()
-        act_dim = low.numel()
-        with self.own_generator():  # initial weights from this learner's generator
-            net = MLP(in_features=obs_dim, out_features=act_dim, num_cells=list(cfg.actor_hidden),
-                      activation_class=nn.ReLU)
-            self.actor = TensorDictSequential(
-                TensorDictModule(net, in_keys=["observation"], out_keys=["action_raw"]),
-                TanhModule(in_keys=["action_raw"], out_keys=["action"], low=low, high=high))
-            critic = ValueOperator(Critic(obs_dim, act_dim, cfg.critic_hidden), in_keys=["observation", "action"])
-            self.loss = DDPGLoss(self.actor, critic, delay_actor=True, delay_value=True)
-        self.loss.make_value_estimator(gamma=cfg.gamma)
-        self.target = SoftUpdate(self.loss, tau=cfg.target_update)
-        self.actor_optim = torch.optim.Adam(self.loss.actor_network_params.values(True, True), lr=cfg.actor_lr)
-        self.critic_optim = torch.optim.Adam(self.loss.value_network_params.values(True, True), lr=cfg.critic_lr)
-        self.buffer = ReplayBuffer(storage=LazyTensorStorage(cfg.buffer_size), batch_size=cfg.batch_size)
-        self.ou = OrnsteinUhlenbeckProcessModule(
-            Bounded(low, high, shape=(act_dim,)), theta=cfg.ou_theta, sigma=cfg.ou_sigma, dt=cfg.ou_dt,
-            eps_init=1.0, eps_end=1.0)
-        self.noise = TensorDict({"_ou_prev_noise": torch.zeros(1, act_dim), "_ou_steps": torch.zeros(1, dtype=torch.long)},
-                                batch_size=[1])
-        self.batch_size = cfg.batch_size
-
-    def act(self, obs: torch.Tensor, new_episode: bool) -> torch.Tensor:
-        """Actor + OU noise for one observation (1, obs_dim)."""
-        td = TensorDict({"observation": obs, "is_init": torch.tensor([[new_episode]])}, batch_size=[1])
-        td.update(self.noise)
-        with self.own_generator(), torch.no_grad():
-            self.ou(self.actor(td))
-        self.noise = td.select("_ou_prev_noise", "_ou_steps").clone()
-        return td.get("action")
-
-    def learn(self, transition: TensorDict) -> None:
-        with self.own_generator():
-            self.buffer.extend(transition)
-            if len(self.buffer) < self.batch_size:
-                return
-            losses = self.loss(self.buffer.sample())
-            self.actor_optim.zero_grad()
-            self.critic_optim.zero_grad()
-            (losses["loss_actor"] + losses["loss_value"]).backward()
-            self.actor_optim.step()
-            self.critic_optim.step()
-            self.target.step()
-            self.updates += 1
-
-    def state_dict(self) -> dict:
-        return {"loss": self.loss.state_dict(), "actor_optim": self.actor_optim.state_dict(),
-                "critic_optim": self.critic_optim.state_dict(), "buffer": self.buffer.state_dict(),
-                "noise": self.noise.to_dict(), **super().state_dict()}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.loss.load_state_dict(state["loss"])
-        self.actor_optim.load_state_dict(state["actor_optim"])
-        self.critic_optim.load_state_dict(state["critic_optim"])
-        self.buffer.load_state_dict(state["buffer"])
-        self.noise = TensorDict(state["noise"], batch_size=[1])
-        super().load_state_dict(state)
+def course_init(net: nn.Module) -> nn.Module:
+    """The course's ``reset_parameters``: each hidden layer's weights uniform in
+    +-1/sqrt(weight.size(0)) (out_features), the output layer's in +-3e-3; biases left
+    at torch's defaults."""
+    linears = [m for m in net.modules() if isinstance(m, nn.Linear)]
+    with torch.no_grad():
+        for layer in linears[:-1]:
+            lim = 1.0 / math.sqrt(layer.weight.size(0))
+            layer.weight.uniform_(-lim, lim)
+        linears[-1].weight.uniform_(-3e-3, 3e-3)
+    return net
 
 
-class DDPG(PerSeedLearners):
-    """S independent DDPG learners behind the runner's agent interface."""
+class DDPG(SeedBatchedLearner):
+    """DDPG for S seeds: stacked actor and critic, one loss, two optimisers."""
 
     Config = DDPGConfig
 
     def __init__(self, cfg: DDPGConfig, seeds: Sequence[int], obs_dim: int, box: Bounded):
-        super().__init__(seeds, lambda torch_seed: Learner(cfg, obs_dim, box, torch_seed))
+        super().__init__(seeds, cfg.buffer_size)
+        self.cfg, self.batch_size = cfg, cfg.batch_size
+        self.low, self.high = box.space.low[0].float(), box.space.high[0].float()
+        act_dim = self.low.numel()
+        init = course_init if cfg.init == "course" else (lambda net: net)
+
+        def actor_and_critic():  # in this order from each seed's generator, as before
+            actor = init(MLP(in_features=obs_dim, out_features=act_dim, num_cells=list(cfg.actor_hidden),
+                             activation_class=nn.ReLU))
+            return nn.ModuleList([actor, init(Critic(obs_dim, act_dim, cfg.critic_hidden))])
+        pairs = build_per_seed(actor_and_critic, self.seeds)
+        self.actor = TensorDictSequential(
+            TensorDictModule(SeedStack([p[0] for p in pairs]), in_keys=["observation"], out_keys=["action_raw"]),
+            TanhModule(in_keys=["action_raw"], out_keys=["action"], low=self.low, high=self.high))
+        critic = ValueOperator(SeedStack([p[1] for p in pairs]), in_keys=["observation", "action"])
+        self.loss = DDPGLoss(self.actor, critic, delay_actor=True, delay_value=True, reduction="none")
+        self.loss.make_value_estimator(gamma=cfg.gamma)
+        self.target = SoftUpdate(self.loss, tau=cfg.target_update)
+        self.actor_optim = torch.optim.Adam(self.loss.actor_network_params.values(True, True), lr=cfg.actor_lr)
+        self.critic_optim = torch.optim.Adam(self.loss.value_network_params.values(True, True), lr=cfg.critic_lr)
+        self.optimizers = [self.actor_optim, self.critic_optim]
+        self.noise = torch.zeros(len(self.seeds), act_dim)
+        self.noise_rng = SeedStreams(self.seeds, stream_id("ddpg.ou"))
+
+    def ou_step(self) -> torch.Tensor:
+        """The next OU noise (S, act_dim): from 0 at each seed's new episode (if ``ou_reset``)."""
+        cfg = self.cfg
+        if cfg.ou_reset:
+            self.noise[self.new_episode] = 0.0
+        draw = (self.noise_rng.uniform(self.noise.shape[1]) if cfg.ou_noise == "uniform"
+                else self.noise_rng.normal(self.noise.shape[1])).to(torch.float32)
+        self.noise = self.noise + cfg.ou_theta * (0.0 - self.noise) * cfg.ou_dt + cfg.ou_sigma * math.sqrt(cfg.ou_dt) * draw
+        return self.noise
+
+    def act(self, td) -> torch.Tensor:
+        """Actor + OU noise, clipped to the action box, float64 (S, act_dim)."""
+        obs = td.get("observation").to(torch.float32)
+        with torch.no_grad():
+            action = self.actor(TensorDict({"observation": obs}, batch_size=obs.shape[:1]))["action"]
+        return (action + self.ou_step()).clamp(self.low, self.high).to(torch.float64)
+
+    def wants_update(self) -> int:
+        stored = len(self.replay)
+        return int(stored > self.batch_size if self.cfg.start_above_batch else stored >= self.batch_size)
+
+    def update(self, batch: TensorDict) -> None:
+        if self.cfg.update == "critic-then-actor":
+            self._step(self.critic_optim, seed_mean(self.loss.loss_value(batch)[0]))
+            self._step(self.actor_optim, seed_mean(self.loss.loss_actor(batch)[0]))
+        else:
+            losses = self.loss(batch)
+            self.actor_optim.zero_grad()
+            self.critic_optim.zero_grad()
+            (seed_mean(losses["loss_actor"]) + seed_mean(losses["loss_value"])).backward()
+            self.actor_optim.step()
+            self.critic_optim.step()
+        self.target.step()
+
+    @staticmethod
+    def _step(optim, loss) -> None:
+        optim.zero_grad()
+        loss.backward()
+        optim.step()
+
+    def state_dict(self) -> dict:
+        return {**super().state_dict(), "noise": self.noise.clone(), "noise_rng": self.noise_rng.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        self.noise = state["noise"].clone()
+        self.noise_rng.load_state_dict(state["noise_rng"])
 
     @classmethod
     def resolve_config(cls, cfg: DDPGConfig, info) -> DDPGConfig:
@@ -146,9 +189,6 @@ class DDPG(PerSeedLearners):
 
     @staticmethod
     def memory_bytes(cfg: DDPGConfig, info, num_seeds: int) -> int:
-        """The replay buffers when full (observation, next observation, action, flags)."""
+        """The replay memory when full (observation, next observation, action, flags)."""
         dim, act = info.observation_dim, int(info.action_box("ddpg").shape[-1])
         return num_seeds * cfg.buffer_size * 4 * (2 * dim + act + 4)
-
-    def act(self, td) -> torch.Tensor:
-        return super().act(td).to(torch.float64)

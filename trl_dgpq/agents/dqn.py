@@ -1,14 +1,15 @@
 """DQN (Mnih et al. 2015) assembled from TorchRL, with Stable-Baselines3's schedule:
-``QValueActor`` over an ``MLP`` (ReLU), ``EGreedyModule`` (epsilon annealed linearly
-from ``eps_init`` to ``eps_end`` over ``exploration_steps`` env steps), ``DQNLoss``
-(Huber, TD(0) targets from a target network), ``HardUpdate`` (the target copies the
-online network every ``target_update_interval`` env steps), ``ReplayBuffer`` with
-``LazyTensorStorage``, Adam with gradient norm clipped at ``max_grad_norm``.
+``QValueActor`` over an ``MLP`` (ReLU), ``DQNLoss`` (Huber, TD(0) targets from a
+target network), ``HardUpdate`` (the target copies the online network every
+``target_update_interval`` env steps), Adam with the gradient norm clipped at
+``max_grad_norm``; epsilon-greedy with epsilon annealed linearly from ``eps_init``
+to ``eps_end`` over ``exploration_steps`` env steps.
 
-One learner per seed (``neural.PerSeedLearners``). Per env step of an active seed:
-act epsilon-greedily, store the transition, count the step towards epsilon and the
-target update; once ``learning_starts`` steps are stored, every ``train_freq``-th step
-makes ``gradient_steps`` updates on minibatches of ``batch_size``.
+All seeds learn as one (``neural``: the Q-networks stacked over seeds, per-seed
+losses, clipping, replay and random streams). Per env step of the active seeds:
+act epsilon-greedily, store the transition, count the step; once ``learning_starts``
+steps are taken and a minibatch is stored, every ``train_freq``-th step makes
+``gradient_steps`` updates on minibatches of ``batch_size`` per seed.
 
 Observations are the env's (the gym envs' are already in the unit box); a discrete
 action spec is required (liquidation: ``action_levels`` > 0).
@@ -20,14 +21,14 @@ from typing import Sequence, Tuple
 
 import torch
 from tensordict import TensorDict
-from tensordict.nn import TensorDictSequential
 from torch import nn
-from torchrl.data import Categorical, LazyTensorStorage, ReplayBuffer
-from torchrl.modules import MLP, EGreedyModule, QValueActor
+from torchrl.data import Categorical
+from torchrl.modules import MLP, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate
 
 from ..config import setting
-from .neural import PerSeedLearners, TorchLearner
+from ..rng import SeedStreams, stream_id
+from .neural import SeedBatchedLearner, SeedStack, build_per_seed, clip_grad_norm_per_seed, seed_mean
 
 
 @dataclass
@@ -49,7 +50,7 @@ class DQNConfig:
     eps_end: float = setting(0.1, "final exploration epsilon", within="[0, 1]")
     exploration_steps: int = setting(12_000, "env steps over which epsilon falls linearly to eps_end",
                                      within="[1, inf)")
-    max_grad_norm: float = setting(10.0, "gradient norm clip", within="(0, inf)")
+    max_grad_norm: float = setting(10.0, "gradient norm clip (per seed)", within="(0, inf)")
 
     def cross_check(self) -> None:
         if self.buffer_size < self.batch_size:
@@ -58,72 +59,68 @@ class DQNConfig:
             raise ValueError(f"need 0 <= eps_end <= eps_init <= 1, got {self.eps_end} and {self.eps_init}")
 
 
-class Learner(TorchLearner):
-    """One seed's DQN: Q-network and its target, loss, optimiser, replay buffer, epsilon."""
-
-    def __init__(self, cfg: DQNConfig, obs_dim: int, n_actions: int, torch_seed: int):
-        super().__init__(torch_seed)
-        spec = Categorical(n_actions)
-        with self.own_generator():  # initial weights from this learner's generator
-            net = MLP(in_features=obs_dim, out_features=n_actions, num_cells=list(cfg.hidden),
-                      activation_class=nn.ReLU)
-            self.actor = QValueActor(net, in_keys=["observation"], spec=spec)
-            self.loss = DQNLoss(self.actor, loss_function="smooth_l1", delay_value=True, action_space=spec)
-        self.loss.make_value_estimator(gamma=cfg.gamma)
-        # HardUpdate copies on the (interval + 1)-th call of step(), then every interval + 1
-        self.target = HardUpdate(self.loss, value_network_update_interval=cfg.target_update_interval - 1)
-        self.explore = EGreedyModule(spec, eps_init=float(cfg.eps_init), eps_end=float(cfg.eps_end),
-                                     annealing_num_steps=cfg.exploration_steps)
-        self.policy = TensorDictSequential(self.actor, self.explore)
-        self.params = list(self.loss.value_network_params.values(True, True))  # the online network's
-        self.optim = torch.optim.Adam(self.params, lr=cfg.lr)
-        self.buffer = ReplayBuffer(storage=LazyTensorStorage(cfg.buffer_size), batch_size=cfg.batch_size)
-        self.cfg, self.steps = cfg, 0
-
-    def act(self, obs: torch.Tensor, new_episode: bool) -> torch.Tensor:
-        with self.own_generator(), torch.no_grad():
-            return self.policy(TensorDict({"observation": obs}, batch_size=[1])).get("action")
-
-    def learn(self, transition: TensorDict) -> None:
-        cfg = self.cfg
-        with self.own_generator():
-            self.buffer.extend(transition)
-            self.steps += 1
-            self.explore.step()
-            # from learning_starts on, once a minibatch is stored (SB3 samples with replacement before)
-            ready = self.steps >= cfg.learning_starts and len(self.buffer) >= cfg.batch_size
-            if ready and self.steps % cfg.train_freq == 0:
-                for _ in range(cfg.gradient_steps):
-                    loss = self.loss(self.buffer.sample())["loss"]
-                    self.optim.zero_grad()
-                    loss.backward()
-                    nn.utils.clip_grad_norm_(self.params, cfg.max_grad_norm)
-                    self.optim.step()
-                    self.updates += 1
-            self.target.step()  # counts env steps; copies every target_update_interval-th
-
-    def state_dict(self) -> dict:
-        return {"loss": self.loss.state_dict(), "optim": self.optim.state_dict(), "buffer": self.buffer.state_dict(),
-                "eps": self.explore.eps.clone(), "target_counter": self.target.counter, "steps": self.steps,
-                **super().state_dict()}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.loss.load_state_dict(state["loss"])
-        self.optim.load_state_dict(state["optim"])
-        self.buffer.load_state_dict(state["buffer"])
-        self.explore.eps.copy_(state["eps"])
-        self.target.counter = int(state["target_counter"])
-        self.steps = int(state["steps"])
-        super().load_state_dict(state)
-
-
-class DQN(PerSeedLearners):
-    """S independent DQN learners behind the runner's agent interface."""
+class DQN(SeedBatchedLearner):
+    """DQN for S seeds: one stacked Q-network, one loss, one optimiser."""
 
     Config = DQNConfig
 
     def __init__(self, cfg: DQNConfig, seeds: Sequence[int], obs_dim: int, n_actions: int):
-        super().__init__(seeds, lambda torch_seed: Learner(cfg, obs_dim, n_actions, torch_seed))
+        super().__init__(seeds, cfg.buffer_size)
+        self.cfg, self.batch_size, self.n_actions = cfg, cfg.batch_size, n_actions
+        nets = build_per_seed(lambda: MLP(in_features=obs_dim, out_features=n_actions, num_cells=list(cfg.hidden),
+                                          activation_class=nn.ReLU), self.seeds)
+        spec = Categorical(n_actions)
+        self.actor = QValueActor(SeedStack(nets), in_keys=["observation"], spec=spec)
+        self.loss = DQNLoss(self.actor, loss_function="smooth_l1", delay_value=True, action_space=spec,
+                            reduction="none")
+        self.loss.make_value_estimator(gamma=cfg.gamma)
+        # HardUpdate copies on the (interval + 1)-th call of step(), then every interval + 1
+        self.target = HardUpdate(self.loss, value_network_update_interval=cfg.target_update_interval - 1)
+        self.params = list(self.loss.value_network_params.values(True, True))  # the online network's
+        self.optimizers = [torch.optim.Adam(self.params, lr=cfg.lr)]
+        self.explore_rng = SeedStreams(self.seeds, stream_id("dqn.explore"))
+
+    @property
+    def eps(self) -> float:
+        """Epsilon at the next action: linear from eps_init to eps_end over exploration_steps env steps."""
+        cfg = self.cfg
+        return cfg.eps_end + (cfg.eps_init - cfg.eps_end) * max(0.0, 1.0 - self.steps / cfg.exploration_steps)
+
+    def greedy(self, obs: torch.Tensor) -> torch.Tensor:
+        """argmax_a Q(obs, a) per seed: obs (S, obs_dim) -> (S,) long."""
+        with torch.no_grad():
+            return self.actor(TensorDict({"observation": obs.to(torch.float32)}, batch_size=obs.shape[:1]))["action"]
+
+    def act(self, td) -> torch.Tensor:
+        u = self.explore_rng.uniform(2)                           # (S, 2): explore?, which action
+        random = (u[:, 1] * self.n_actions).long()
+        return torch.where(u[:, 0] < self.eps, random, self.greedy(td.get("observation")))
+
+    def wants_update(self) -> int:
+        cfg = self.cfg
+        # from learning_starts on, once a minibatch is stored (SB3 samples with replacement before)
+        ready = self.steps >= cfg.learning_starts and len(self.replay) >= cfg.batch_size
+        return cfg.gradient_steps if ready and self.steps % cfg.train_freq == 0 else 0
+
+    def update(self, batch: TensorDict) -> None:
+        loss = seed_mean(self.loss(batch)["loss"])
+        optim = self.optimizers[0]
+        optim.zero_grad()
+        loss.backward()
+        clip_grad_norm_per_seed(self.params, self.cfg.max_grad_norm)
+        optim.step()
+
+    def after_step(self) -> None:
+        self.target.step()  # counts env steps; copies every target_update_interval-th
+
+    def state_dict(self) -> dict:
+        return {**super().state_dict(), "target_counter": self.target.counter,
+                "explore_rng": self.explore_rng.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        self.target.counter = int(state["target_counter"])
+        self.explore_rng.load_state_dict(state["explore_rng"])
 
     @classmethod
     def resolve_config(cls, cfg: DQNConfig, info) -> DQNConfig:
@@ -136,5 +133,5 @@ class DQN(PerSeedLearners):
 
     @staticmethod
     def memory_bytes(cfg: DQNConfig, info, num_seeds: int) -> int:
-        """The replay buffers when full (observation, next observation, action, reward, flags)."""
+        """The replay memory when full (observation, next observation, action, reward, flags)."""
         return num_seeds * cfg.buffer_size * (4 * (2 * info.observation_dim + 1) + 8 + 2)

@@ -1,0 +1,133 @@
+"""The seed-batched neural learners' shared parts, each against an independent
+computation: per-seed Adam, torch's own clip_grad_norm_ per seed, per-seed means,
+per-seed replay, frozen finished seeds, and a seed alone = the seed in any batch."""
+import pandas as pd
+import pytest
+import torch
+from tensordict import TensorDict
+from torch import nn
+
+from trl_dgpq.agents.neural import (SeedReplay, SeedStack, build_per_seed, clip_grad_norm_per_seed, keep_rows,
+                                    seed_mean)
+from trl_dgpq.collectors.experiment import TIMING_COLUMNS, build, resolve_config, run_experiment
+from trl_dgpq.collectors.online import OnlineCollector
+
+
+def test_adam_on_stacked_parameters_is_adam_per_seed():
+    g = torch.Generator().manual_seed(0)
+    stacked = nn.Parameter(torch.randn(3, 5, 4, generator=g))
+    alone = [nn.Parameter(stacked.detach()[i].clone()) for i in range(3)]
+    opt = torch.optim.Adam([stacked], lr=0.1)
+    opts = [torch.optim.Adam([p], lr=0.1) for p in alone]
+    for _ in range(4):
+        grad = torch.randn(3, 5, 4, generator=g)
+        stacked.grad = grad.clone()
+        opt.step()
+        for i, (p, o) in enumerate(zip(alone, opts)):
+            p.grad = grad[i].clone()
+            o.step()
+    assert all(torch.equal(stacked.detach()[i], alone[i].detach()) for i in range(3))
+
+
+def test_gradient_clipping_is_torchs_per_seed():
+    g = torch.Generator().manual_seed(1)
+    params = [nn.Parameter(torch.zeros(3, 4, 2)), nn.Parameter(torch.zeros(3, 6))]
+    grads = [torch.randn(3, 4, 2, generator=g) * s for s in (1.0, 5.0) for _ in [0]][:1] + [torch.randn(3, 6,
+                                                                                                     generator=g)]
+    grads[0][1] *= 100  # seed 1 clipped hard, seed 0 and 2 less or not at all
+    for p, gr in zip(params, grads):
+        p.grad = gr.clone()
+    norms = clip_grad_norm_per_seed(params, max_norm=3.0)
+    for i in range(3):
+        ref = [nn.Parameter(torch.zeros_like(p[i])) for p in params]
+        for r, gr in zip(ref, grads):
+            r.grad = gr[i].clone()
+        expect = nn.utils.clip_grad_norm_(ref, 3.0)
+        assert float(norms[i]) == pytest.approx(float(expect), rel=1e-6)
+        for r, p in zip(ref, params):
+            torch.testing.assert_close(p.grad[i], r.grad, rtol=1e-6, atol=0)
+    assert float(norms[1]) > 3.0 and params[0].grad[1].norm() < grads[0][1].norm() / 10
+
+
+def test_seed_mean_is_the_sum_of_each_seeds_mean():
+    loss = torch.rand(16, 3)  # (B, S)
+    assert float(seed_mean(loss)) == pytest.approx(sum(float(loss[:, i].mean()) for i in range(3)), rel=1e-6)
+    assert torch.equal(seed_mean(loss[:, 1:2]), loss[:, 1].contiguous().mean())
+
+
+def test_a_stack_computes_each_seeds_own_network():
+    nets = build_per_seed(lambda: nn.Sequential(nn.Linear(3, 5), nn.ReLU(), nn.Linear(5, 2)), [4, 7])
+    plain = build_per_seed(lambda: nn.Sequential(nn.Linear(3, 5), nn.ReLU(), nn.Linear(5, 2)), [7])[0]
+    stack = SeedStack(nets)
+    x = torch.rand(6, 2, 3)
+    with torch.no_grad():
+        torch.testing.assert_close(stack(x)[:, 1], plain(x[:, 1]))  # seed 7's net, whatever its position
+        assert not torch.allclose(stack(x)[:, 0], plain(x[:, 0]))
+
+
+def test_replay_samples_each_seeds_own_transitions_uniformly():
+    replay = SeedReplay(capacity=4, seeds=[0, 1])
+    for t in range(6):  # wraps: rows hold steps 4, 5, 2, 3
+        replay.add(TensorDict({"x": torch.tensor([[100.0 + t], [200.0 + t]])}, batch_size=[2]))
+    assert len(replay) == 4
+    batch = replay.sample(4000)["x"][..., 0]  # (B, S)
+    assert batch.shape == (4000, 2)
+    assert set(batch[:, 0].tolist()) == {102.0, 103.0, 104.0, 105.0}
+    assert set(batch[:, 1].tolist()) == {202.0, 203.0, 204.0, 205.0}
+    counts = torch.bincount(batch[:, 0].long() - 102)
+    assert counts.min() > 850  # uniform: ~1000 each
+    alone = SeedReplay(capacity=4, seeds=[1])
+    for t in range(6):
+        alone.add(TensorDict({"x": torch.tensor([[200.0 + t]])}, batch_size=[1]))
+    fresh = SeedReplay(capacity=4, seeds=[0, 1])
+    fresh.load_state_dict(replay.state_dict())
+    replay.rng.counter = alone.rng.counter = 0
+    assert torch.equal(replay.sample(7)["x"][:, 1], alone.sample(7)["x"][:, 0])  # a seed's draws are its own
+
+
+def test_keep_rows_restores_finished_seeds_only():
+    t = torch.arange(6.0).view(3, 2)
+    with keep_rows([t], torch.tensor([False, True, False])):
+        t.mul_(10)
+    assert t.tolist() == [[0.0, 10.0], [2.0, 3.0], [40.0, 50.0]]
+
+
+DQN_SMALL = dict(env="gym:CartPole-v1", agent="dqn", batch_size=16, learning_starts=32, train_freq=1,
+                 gradient_steps=2, hidden=(64, 64), exploration_steps=200, target_update_interval=50,
+                 max_grad_norm=0.5, episodes=8)
+DDPG_SMALL = dict(env="liquidation", agent="ddpg", trades=15, batch_size=8, buffer_size=100, episodes=6)
+
+
+@pytest.mark.parametrize("cfg", [DQN_SMALL, DDPG_SMALL], ids=["dqn", "ddpg"])
+def test_seed_alone_equals_seed_in_batches_of_2_3_8(cfg):
+    """Bitwise: episodes, and the finished learner's every tensor (a finished seed is frozen,
+    so the batch's copy of it is the lone run's)."""
+    def run(seeds):
+        config = resolve_config(seeds=seeds, **cfg)
+        env, agent = build(config)
+        df = OnlineCollector(env, agent, cfg["episodes"], progress=False).run()
+        state = agent.loss.state_dict()
+        return df[df.seed == 1].reset_index(drop=True).drop(columns=list(TIMING_COLUMNS)), \
+            {k: v[seeds.index(1)] for k, v in state.items() if ".params." in k}, df
+    alone, alone_state, _ = run([1])
+    assert alone.updates.iloc[-1] > 20
+    for seeds in ([0, 1], [5, 1, 2], [3, 4, 5, 6, 7, 8, 9, 1]):
+        rows, state, df = run(seeds)
+        pd.testing.assert_frame_equal(rows, alone)
+        assert state.keys() == alone_state.keys() and all(torch.equal(state[k], alone_state[k]) for k in state)
+        assert df.groupby("seed").steps.sum().nunique() > 1 or cfg is DDPG_SMALL  # seeds finished apart
+
+
+@pytest.mark.parametrize("cfg", [DQN_SMALL, DDPG_SMALL], ids=["dqn", "ddpg"])
+def test_learners_leave_torchs_global_generator_alone(cfg):
+    torch.manual_seed(5)
+    expected = torch.rand(3)
+    torch.manual_seed(5)
+    run_experiment(resolve_config(seeds=[0, 1], **dict(cfg, episodes=2)), progress=False)
+    assert torch.equal(torch.rand(3), expected)
+
+
+def test_an_old_per_seed_checkpoint_is_refused_in_one_line():
+    env, agent = build(resolve_config(seeds=[0], **DDPG_SMALL))
+    with pytest.raises(ValueError, match="one learner per seed"):
+        agent.load_state_dict({"learners": [{}], "new_episode": torch.ones(1, dtype=torch.bool)})
