@@ -6,10 +6,13 @@ import math
 import pytest
 import torch
 from tensordict import TensorDict
+from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.data import Bounded, LazyTensorStorage
+from torchrl.modules import MLP, TanhModule, ValueOperator
 from torchrl.objectives import DDPGLoss, SoftUpdate
 
-from trl_dgpq.agents.ddpg import DDPG, DDPGConfig
+from trl_dgpq.agents.ddpg import DDPG, Critic, DDPGConfig
+from trl_dgpq.agents.neural import build_per_seed
 from trl_dgpq.collectors.experiment import build, resolve_config
 from trl_dgpq.collectors.online import OnlineCollector
 from trl_dgpq.rng import SeedStreams, stream_id
@@ -18,15 +21,50 @@ SMALL = dict(env="liquidation", agent="ddpg", trades=15, batch_size=8, buffer_si
 BOX = Bounded(torch.zeros(1), torch.ones(1), shape=(1,))
 
 
-def test_built_from_torchrl_parts_with_the_course_sizes():
+def test_the_course_sizes_stacked_over_seeds():
     env, agent = build(resolve_config(env="liquidation", agent="ddpg", seeds=[0, 1]))
-    assert isinstance(agent.loss, DDPGLoss) and isinstance(agent.target, SoftUpdate)
     assert isinstance(agent.replay.storage, LazyTensorStorage) and agent.replay.capacity == 10_000
-    actor = agent.loss.actor_network_params.flatten_keys(".")
-    widths = [tuple(v.shape) for k, v in actor.items() if k.endswith("weight")]
+    widths = [tuple(v.shape) for k, v in agent.actor.state_dict().items() if k.endswith("weight")]
     assert widths == [(2, 24, 8), (2, 48, 24), (2, 1, 48)]  # two seeds' 8 -> 24 -> 48 -> 1
     a = agent.act(env.reset())
     assert a.shape == (2, 1) and a.dtype == torch.float64 and ((0 <= a) & (a <= 1)).all()
+
+
+def test_losses_and_soft_update_equal_torchrls_on_one_seeds_networks():
+    """Seed 5's row of our per-element losses equals TorchRL's DDPGLoss (reduction "none") on
+    seed 5's own networks (built from its generator), target networks apart from the online
+    ones; our soft update equals SoftUpdate's."""
+    agent = DDPG(DDPGConfig(gamma=0.9), [2, 5], 3, BOX)
+    with torch.no_grad():
+        for name in ("target_actor", "target_critic"):
+            for p in agent.nets[name].parameters():
+                p.mul_(0.7)
+    batch = batch_of(16, S=2)
+    mlp, critic = build_per_seed(lambda: torch.nn.ModuleList([
+        MLP(in_features=3, out_features=1, num_cells=[24, 48], activation_class=torch.nn.ReLU),
+        Critic(3, 1, (24, 48))]), [5])[0]
+    actor = TensorDictSequential(TensorDictModule(mlp, ["observation"], ["raw"]),
+                                 TanhModule(in_keys=["raw"], out_keys=["action"], low=BOX.space.low,
+                                            high=BOX.space.high))
+    reference = DDPGLoss(actor, ValueOperator(critic, in_keys=["observation", "action"]), delay_actor=True,
+                         delay_value=True, reduction="none")
+    reference.make_value_estimator(gamma=0.9)
+    updater = SoftUpdate(reference, tau=0.05)  # (before the targets move: it starts them at the online nets)
+    with torch.no_grad():
+        for params in (reference.target_actor_network_params, reference.target_value_network_params):
+            for key, p in params.flatten_keys(".").items():
+                if not key.endswith(("_low", "_high")):  # the box's bounds, not weights
+                    p.mul_(0.7)
+    ref = reference(batch[1].clone())
+    torch.testing.assert_close(agent.value_loss(batch)[1], ref["loss_value"], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(agent.actor_loss(batch)[1], ref["loss_actor"], rtol=1e-5, atol=1e-6)
+    updater.step()
+    agent.nets["target_critic"].soft_update_(0.05)
+    ours = {k.split(".", 2)[2]: p[1] for k, p in agent.nets["target_critic"].named_parameters()}
+    theirs = {k.split(".", 1)[1]: p for k, p in reference.target_value_network_params.flatten_keys(".").items()}
+    assert ours.keys() == theirs.keys() and len(ours) == 6
+    for k in ours:
+        torch.testing.assert_close(ours[k], theirs[k], rtol=1e-6, atol=1e-7)
 
 
 def ou_trace(cfg, seeds, new_episode_at=(), steps=6):
@@ -69,15 +107,15 @@ def test_course_initial_weights_use_out_features():
     """Hidden weights in +-1/sqrt(out_features) (torch's default is +-1/sqrt(in_features): 8 inputs
     would give 0.35, not 0.20), output layers in +-3e-3."""
     agent = DDPG(DDPGConfig(init="course"), list(range(4)), 8, BOX)
-    params = {**agent.loss.actor_network_params.flatten_keys(".").to_dict(),
-              **agent.loss.value_network_params.flatten_keys(".").to_dict()}
+    params = {**{f"actor.{k}": v for k, v in agent.actor.state_dict().items()},
+              **{f"critic.{k}": v for k, v in agent.critic.state_dict().items()}}
     weights = {k: v for k, v in params.items() if k.endswith("weight")}
     assert len(weights) == 6
     for k, w in weights.items():
         out = w.shape[1]
         lim = 3e-3 if out == 1 else 1 / math.sqrt(out)
         assert w.abs().max() <= lim and w.abs().max() > 0.9 * lim, k
-    default = DDPG(DDPGConfig(), list(range(4)), 8, BOX).loss.actor_network_params.flatten_keys(".")
+    default = DDPG(DDPGConfig(), list(range(4)), 8, BOX).actor.state_dict()
     first = [v for k, v in default.items() if k.endswith("0.weight")][0]
     assert first.abs().max() > 1 / math.sqrt(24)
 
@@ -85,10 +123,10 @@ def test_course_initial_weights_use_out_features():
 def batch_of(n, S=1, obs_dim=3, seed=0):
     g = torch.Generator().manual_seed(seed)
     f = lambda *s: torch.rand(*s, generator=g)  # noqa: E731
-    flag = torch.zeros(n, S, 1, dtype=torch.bool)
-    return TensorDict({"observation": f(n, S, obs_dim), "action": f(n, S, 1),
-                       "next": {"observation": f(n, S, obs_dim), "reward": f(n, S, 1), "done": flag,
-                                "terminated": flag.clone()}}, batch_size=[n, S])
+    flag = torch.zeros(S, n, 1, dtype=torch.bool)
+    return TensorDict({"observation": f(S, n, obs_dim), "action": f(S, n, 1),
+                       "next": {"observation": f(S, n, obs_dim), "reward": f(S, n, 1), "done": flag,
+                                "terminated": flag.clone()}}, batch_size=[S, n])
 
 
 def test_critic_then_actor_steps_the_actor_against_the_updated_critic():
@@ -99,22 +137,19 @@ def test_critic_then_actor_steps_the_actor_against_the_updated_critic():
     batches = [batch_of(16, seed=k) for k in range(3)]
     by_hand = DDPG(DDPGConfig(), [0], 3, BOX)
     for b in batches:
-        for optim, term in ((by_hand.critic_optim, by_hand.loss.loss_value), (by_hand.actor_optim,
-                                                                              by_hand.loss.loss_actor)):
+        for optim, term in ((by_hand.critic_optim, by_hand.value_loss), (by_hand.actor_optim, by_hand.actor_loss)):
             optim.zero_grad()
-            term(b.clone())[0].mean().backward()
+            term(b.clone()).mean().backward()
             optim.step()
-        by_hand.target.step()
+        for name in ("target_actor", "target_critic"):
+            by_hand.nets[name].soft_update_(1e-3)
     for update, same in (("critic-then-actor", True), ("joint", False)):
         agent = DDPG(DDPGConfig(update=update), [0], 3, BOX)
         for b in batches:
             agent.update(b.clone())
-        actor = agent.loss.actor_network_params.flatten_keys(".")
-        ref = by_hand.loss.actor_network_params.flatten_keys(".")
-        assert all(torch.equal(actor[k], ref[k]) for k in ref.keys()) == same, update
-        critic = agent.loss.value_network_params.flatten_keys(".")
-        assert all(torch.equal(critic[k], by_hand.loss.value_network_params.flatten_keys(".")[k])
-                   for k in critic.keys())  # the critic's steps are the same either way
+        same_actor = all(torch.equal(p, q) for p, q in zip(agent.actor.parameters(), by_hand.actor.parameters()))
+        assert same_actor == same, update
+        assert all(torch.equal(p, q) for p, q in zip(agent.critic.parameters(), by_hand.critic.parameters()))
 
 
 @pytest.mark.parametrize("above, first_update", [(False, 8), (True, 9)])
@@ -122,7 +157,7 @@ def test_learning_starts_with_a_minibatch_or_more_than_one(above, first_update):
     agent = DDPG(DDPGConfig(batch_size=8, start_above_batch=above), [0], 3, BOX)
     counts = []
     for t in range(10):
-        agent.observe(batch_of(1, seed=t)[0])
+        agent.observe(batch_of(1, seed=t)[:, 0])
         counts.append(int(agent.updates[0]))
     assert counts.index(1) + 1 == first_update
 

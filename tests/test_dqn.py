@@ -5,7 +5,9 @@ import pytest
 import torch
 from tensordict import TensorDict
 from torch import nn
-from torchrl.modules import MLP
+from torchrl.data import Categorical
+from torchrl.modules import MLP, QValueActor
+from torchrl.objectives import DQNLoss
 
 from trl_dgpq.agents.dqn import DQN, DQNConfig
 from trl_dgpq.agents.neural import build_per_seed
@@ -30,9 +32,7 @@ def trace(cfg, steps, read, seeds=(0,)):
 
 
 def target_equals_online(agent):
-    online = agent.loss.value_network_params.flatten_keys()
-    target = agent.loss.target_value_network_params.flatten_keys()
-    return all(torch.equal(online[k], target[k]) for k in online.keys())
+    return all(torch.equal(p, q) for p, q in zip(agent.qnet.parameters(), agent.target.parameters()))
 
 
 def test_updates_start_and_repeat_on_schedule():
@@ -78,24 +78,34 @@ def test_target_network_copies_every_interval_steps():
     assert [i + 1 for i, e in enumerate(equal) if e] == [1, 4, 8, 12]
 
 
-def test_td_target_by_hand():
+def test_td_target_by_hand_and_as_torchrls_dqn_loss():
     """Per element: the Huber loss of Q(s, a) - (r + gamma (1 - terminated) max_a' Q_target(s', a')),
-    seed 1's from seed 1's own networks."""
+    seed 1's from seed 1's own networks; and TorchRL's DQNLoss on that seed's networks agrees."""
     agent = DQN(DQNConfig(hidden=(8,), gamma=0.7, batch_size=4, buffer_size=10), [3, 8], 3, 2)
-    batch = torch.stack([torch.cat([transition(n=3), transition(terminated=True, n=2)]) for _ in range(2)], 1)
+    batch = torch.stack([torch.cat([transition(n=3), transition(terminated=True, n=2)]) for _ in range(2)])
     with torch.no_grad():
-        agent.loss.target_value_network_params.apply_(lambda p: p.mul_(0.5))  # target != online
-    loss = agent.loss(batch.clone())["loss"]  # (B, S)
-    online = build_per_seed(lambda: MLP(in_features=3, out_features=2, num_cells=[8], activation_class=nn.ReLU),
-                            [8])[0]
-    target = build_per_seed(lambda: MLP(in_features=3, out_features=2, num_cells=[8], activation_class=nn.ReLU),
-                            [8])[0].apply(lambda m: [p.data.mul_(0.5) for p in m.parameters(recurse=False)])
-    b = batch[:, 1]
+        for p in agent.target.parameters():
+            p.mul_(0.5)  # target != online
+    loss = agent.td_loss(batch.clone())  # (S, B)
+    make = lambda: MLP(in_features=3, out_features=2, num_cells=[8], activation_class=nn.ReLU)  # noqa: E731
+    online, target = build_per_seed(make, [8])[0], build_per_seed(make, [8])[0]
+    with torch.no_grad():
+        for p in target.parameters():
+            p.mul_(0.5)
+    b = batch[1]
     with torch.no_grad():
         q = online(b["observation"]).gather(-1, b["action"][:, None])[:, 0]
         y = b["next", "reward"][:, 0] + 0.7 * (~b["next", "terminated"][:, 0]) * target(b["next", "observation"]).max(-1).values
         expect = torch.nn.functional.smooth_l1_loss(q, y, reduction="none")
-    torch.testing.assert_close(loss[:, 1], expect, rtol=1e-5, atol=1e-7)
+    torch.testing.assert_close(loss[1], expect, rtol=1e-5, atol=1e-7)
+
+    spec = Categorical(2)
+    reference = DQNLoss(QValueActor(online, in_keys=["observation"], spec=spec), loss_function="smooth_l1",
+                        delay_value=True, action_space=spec, reduction="none")
+    reference.make_value_estimator(gamma=0.7)
+    with torch.no_grad():
+        reference.target_value_network_params.apply_(lambda p: p.mul_(0.5))
+    torch.testing.assert_close(reference(b.clone())["loss"], expect, rtol=1e-5, atol=1e-7)
 
 
 def test_greedy_action_is_the_argmax_of_the_seeds_own_network():

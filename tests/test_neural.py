@@ -50,19 +50,20 @@ def test_gradient_clipping_is_torchs_per_seed():
 
 
 def test_seed_mean_is_the_sum_of_each_seeds_mean():
-    loss = torch.rand(16, 3)  # (B, S)
-    assert float(seed_mean(loss)) == pytest.approx(sum(float(loss[:, i].mean()) for i in range(3)), rel=1e-6)
-    assert torch.equal(seed_mean(loss[:, 1:2]), loss[:, 1].contiguous().mean())
+    loss = torch.rand(3, 16)  # (S, B)
+    assert float(seed_mean(loss)) == pytest.approx(sum(float(loss[i].mean()) for i in range(3)), rel=1e-6)
+    assert torch.equal(seed_mean(loss[1:2]), loss[1].mean())
 
 
 def test_a_stack_computes_each_seeds_own_network():
     nets = build_per_seed(lambda: nn.Sequential(nn.Linear(3, 5), nn.ReLU(), nn.Linear(5, 2)), [4, 7])
     plain = build_per_seed(lambda: nn.Sequential(nn.Linear(3, 5), nn.ReLU(), nn.Linear(5, 2)), [7])[0]
     stack = SeedStack(nets)
-    x = torch.rand(6, 2, 3)
+    x = torch.rand(2, 6, 3)
     with torch.no_grad():
-        torch.testing.assert_close(stack(x)[:, 1], plain(x[:, 1]))  # seed 7's net, whatever its position
-        assert not torch.allclose(stack(x)[:, 0], plain(x[:, 0]))
+        torch.testing.assert_close(stack(x)[1], plain(x[1]))  # seed 7's net, whatever its position
+        assert not torch.allclose(stack(x)[0], plain(x[0]))
+        torch.testing.assert_close(stack(x[:, 0])[1], plain(x[1, 0]))  # one row per seed (acting)
 
 
 def test_replay_samples_each_seeds_own_transitions_uniformly():
@@ -70,11 +71,11 @@ def test_replay_samples_each_seeds_own_transitions_uniformly():
     for t in range(6):  # wraps: rows hold steps 4, 5, 2, 3
         replay.add(TensorDict({"x": torch.tensor([[100.0 + t], [200.0 + t]])}, batch_size=[2]))
     assert len(replay) == 4
-    batch = replay.sample(4000)["x"][..., 0]  # (B, S)
-    assert batch.shape == (4000, 2)
-    assert set(batch[:, 0].tolist()) == {102.0, 103.0, 104.0, 105.0}
-    assert set(batch[:, 1].tolist()) == {202.0, 203.0, 204.0, 205.0}
-    counts = torch.bincount(batch[:, 0].long() - 102)
+    batch = replay.sample(4000)["x"][..., 0]  # (S, B)
+    assert batch.shape == (2, 4000)
+    assert set(batch[0].tolist()) == {102.0, 103.0, 104.0, 105.0}
+    assert set(batch[1].tolist()) == {202.0, 203.0, 204.0, 205.0}
+    counts = torch.bincount(batch[0].long() - 102)
     assert counts.min() > 850  # uniform: ~1000 each
     alone = SeedReplay(capacity=4, seeds=[1])
     for t in range(6):
@@ -82,12 +83,12 @@ def test_replay_samples_each_seeds_own_transitions_uniformly():
     fresh = SeedReplay(capacity=4, seeds=[0, 1])
     fresh.load_state_dict(replay.state_dict())
     replay.rng.counter = alone.rng.counter = 0
-    assert torch.equal(replay.sample(7)["x"][:, 1], alone.sample(7)["x"][:, 0])  # a seed's draws are its own
+    assert torch.equal(replay.sample(7)["x"][1], alone.sample(7)["x"][0])  # a seed's draws are its own
 
 
 def test_keep_rows_restores_finished_seeds_only():
     t = torch.arange(6.0).view(3, 2)
-    with keep_rows([t], torch.tensor([False, True, False])):
+    with keep_rows(lambda: [t], torch.tensor([False, True, False])):
         t.mul_(10)
     assert t.tolist() == [[0.0, 10.0], [2.0, 3.0], [40.0, 50.0]]
 
@@ -106,9 +107,9 @@ def test_seed_alone_equals_seed_in_batches_of_2_3_8(cfg):
         config = resolve_config(seeds=seeds, **cfg)
         env, agent = build(config)
         df = OnlineCollector(env, agent, cfg["episodes"], progress=False).run()
-        state = agent.loss.state_dict()
+        state = agent.nets.state_dict()
         return df[df.seed == 1].reset_index(drop=True).drop(columns=list(TIMING_COLUMNS)), \
-            {k: v[seeds.index(1)] for k, v in state.items() if ".params." in k}, df
+            {k: v[seeds.index(1)] for k, v in state.items() if k.endswith(("weight", "bias"))}, df
     alone, alone_state, _ = run([1])
     assert alone.updates.iloc[-1] > 20
     for seeds in ([0, 1], [5, 1, 2], [3, 4, 5, 6, 7, 8, 9, 1]):

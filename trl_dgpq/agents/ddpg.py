@@ -1,12 +1,14 @@
-"""DDPG (Lillicrap et al. 2016) as the course had it (SPEC 3.2), assembled from TorchRL:
-``DDPGLoss`` (TD(0) targets from target networks), ``SoftUpdate``, an ``Actor``-style
-``MLP`` then ``TanhModule`` onto the action box, and ``ValueOperator``; Ornstein-
-Uhlenbeck exploration noise added to the action and clipped to the box.
+"""DDPG (Lillicrap et al. 2016) as the course had it (SPEC 3.2): an actor (TorchRL's
+``MLP``, then tanh onto the action box as its ``TanhModule`` maps it) and a critic,
+the losses of TorchRL's ``DDPGLoss`` (squared TD(0) error against target networks;
+the actor's -Q(s, actor(s)) with the critic held fixed; tested equal), soft target
+updates (as ``SoftUpdate``), and Ornstein-Uhlenbeck exploration noise added to the
+action and clipped to the box: x <- x + theta (mu - x) dt + sigma sqrt(dt) N(0, 1),
+mu = 0, as TorchRL's ``OrnsteinUhlenbeckProcessModule`` (which draws from torch's
+global generator; here each seed's own stream).
 
 All seeds learn as one (``neural``: networks stacked over seeds, per-seed losses,
-replay and random streams). The OU noise is drawn from each seed's own stream, so
-TorchRL's ``OrnsteinUhlenbeckProcessModule`` (torch's global generator) is replaced
-by its three lines: x <- x + theta (mu - x) dt + sigma sqrt(dt) N(0, 1), mu = 0.
+replay and random streams; why the losses are not ``DDPGLoss`` itself).
 
 Per env step of the active seeds: act, store the transition, and once the memory
 holds a minibatch, one gradient step on the critic (lr ``critic_lr``) and the actor
@@ -29,15 +31,13 @@ from typing import Sequence, Tuple
 
 import torch
 from tensordict import TensorDict
-from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.data import Bounded
-from torchrl.modules import MLP, TanhModule, ValueOperator
-from torchrl.objectives import DDPGLoss, SoftUpdate
+from torchrl.modules import MLP
 
 from ..config import setting
 from ..rng import SeedStreams, stream_id
-from .neural import SeedBatchedLearner, SeedStack, build_per_seed, seed_mean
+from .neural import SeedBatchedLearner, SeedStack, Target, build_per_seed, seed_mean
 
 
 @dataclass
@@ -72,19 +72,29 @@ class DDPGConfig:
 
 
 class Critic(nn.Module):
-    """Q(s, a): state -> hidden[0] (ReLU), concatenate the action -> hidden[1] (ReLU) -> 1.
-    Takes [observation, action] concatenated (``SeedStack`` concatenates its inputs)."""
+    """Q(s, a): state -> hidden[0] (ReLU), concatenate the action -> hidden[1] (ReLU) -> 1."""
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: Tuple[int, int]):
         super().__init__()
-        self.obs_dim = obs_dim
         self.state = nn.Sequential(nn.Linear(obs_dim, hidden[0]), nn.ReLU())
         self.head = MLP(in_features=hidden[0] + act_dim, out_features=1, num_cells=[hidden[1]],
                         activation_class=nn.ReLU)
 
-    def forward(self, observation_action):
-        observation, action = observation_action[..., :self.obs_dim], observation_action[..., self.obs_dim:]
+    def forward(self, observation, action):
         return self.head(torch.cat([self.state(observation), action], -1))
+
+
+class Actor(nn.Module):
+    """An MLP, then tanh mapped onto the box [low, high] (TorchRL's ``TanhModule``'s map)."""
+
+    def __init__(self, mlp: nn.Module, low: torch.Tensor, high: torch.Tensor):
+        super().__init__()
+        self.mlp = mlp
+        self.register_buffer("low", low)
+        self.register_buffer("high", high)
+
+    def forward(self, observation):
+        return self.low + (self.high - self.low) * (self.mlp(observation).tanh() + 1) / 2
 
 
 def course_init(net: nn.Module) -> nn.Module:
@@ -117,15 +127,13 @@ class DDPG(SeedBatchedLearner):
                              activation_class=nn.ReLU))
             return nn.ModuleList([actor, init(Critic(obs_dim, act_dim, cfg.critic_hidden))])
         pairs = build_per_seed(actor_and_critic, self.seeds)
-        self.actor = TensorDictSequential(
-            TensorDictModule(SeedStack([p[0] for p in pairs]), in_keys=["observation"], out_keys=["action_raw"]),
-            TanhModule(in_keys=["action_raw"], out_keys=["action"], low=self.low, high=self.high))
-        critic = ValueOperator(SeedStack([p[1] for p in pairs]), in_keys=["observation", "action"])
-        self.loss = DDPGLoss(self.actor, critic, delay_actor=True, delay_value=True, reduction="none")
-        self.loss.make_value_estimator(gamma=cfg.gamma)
-        self.target = SoftUpdate(self.loss, tau=cfg.target_update)
-        self.actor_optim = torch.optim.Adam(self.loss.actor_network_params.values(True, True), lr=cfg.actor_lr)
-        self.critic_optim = torch.optim.Adam(self.loss.value_network_params.values(True, True), lr=cfg.critic_lr)
+        actor = Actor(SeedStack([p[0] for p in pairs]), self.low, self.high)
+        critic = SeedStack([p[1] for p in pairs])
+        self.nets = nn.ModuleDict(dict(actor=actor, critic=critic, target_actor=Target(actor),
+                                       target_critic=Target(critic)))
+        self.actor, self.critic = actor, critic
+        self.actor_optim = torch.optim.Adam(actor.parameters(), lr=cfg.actor_lr, foreach=True)
+        self.critic_optim = torch.optim.Adam(critic.parameters(), lr=cfg.critic_lr, foreach=True)
         self.optimizers = [self.actor_optim, self.critic_optim]
         self.noise = torch.zeros(len(self.seeds), act_dim)
         self.noise_rng = SeedStreams(self.seeds, stream_id("ddpg.ou"))
@@ -142,27 +150,43 @@ class DDPG(SeedBatchedLearner):
 
     def act(self, td) -> torch.Tensor:
         """Actor + OU noise, clipped to the action box, float64 (S, act_dim)."""
-        obs = td.get("observation").to(torch.float32)
         with torch.no_grad():
-            action = self.actor(TensorDict({"observation": obs}, batch_size=obs.shape[:1]))["action"]
+            action = self.actor(td.get("observation").to(torch.float32))
         return (action + self.ou_step()).clamp(self.low, self.high).to(torch.float64)
 
     def wants_update(self) -> int:
         stored = len(self.replay)
         return int(stored > self.batch_size if self.cfg.start_above_batch else stored >= self.batch_size)
 
+    def value_loss(self, batch: TensorDict) -> torch.Tensor:
+        """Per element (S, B): (Q(s, a) - (r + gamma (1 - terminated) Q'(s', actor'(s'))))^2."""
+        nxt = batch["next"]
+        with torch.no_grad():
+            q_next = self.nets["target_critic"](nxt["observation"], self.nets["target_actor"](nxt["observation"]))
+            y = nxt["reward"] + self.cfg.gamma * (~nxt["terminated"]) * q_next
+        return (self.critic(batch["observation"], batch["action"]) - y).pow(2).squeeze(-1)
+
+    def actor_loss(self, batch: TensorDict) -> torch.Tensor:
+        """Per element (S, B): -Q(s, actor(s)), the critic held fixed (its parameters get no gradient)."""
+        obs = batch["observation"]
+        critic = self.critic.requires_grad_(False)
+        try:
+            return -critic(obs, self.actor(obs)).squeeze(-1)
+        finally:
+            critic.requires_grad_(True)
+
     def update(self, batch: TensorDict) -> None:
         if self.cfg.update == "critic-then-actor":
-            self._step(self.critic_optim, seed_mean(self.loss.loss_value(batch)[0]))
-            self._step(self.actor_optim, seed_mean(self.loss.loss_actor(batch)[0]))
+            self._step(self.critic_optim, seed_mean(self.value_loss(batch)))
+            self._step(self.actor_optim, seed_mean(self.actor_loss(batch)))
         else:
-            losses = self.loss(batch)
             self.actor_optim.zero_grad()
             self.critic_optim.zero_grad()
-            (seed_mean(losses["loss_actor"]) + seed_mean(losses["loss_value"])).backward()
+            (seed_mean(self.actor_loss(batch)) + seed_mean(self.value_loss(batch))).backward()
             self.actor_optim.step()
             self.critic_optim.step()
-        self.target.step()
+        for name in ("actor", "critic"):
+            self.nets[f"target_{name}"].soft_update_(self.cfg.target_update)
 
     @staticmethod
     def _step(optim, loss) -> None:

@@ -1,12 +1,12 @@
-"""DQN (Mnih et al. 2015) assembled from TorchRL, with Stable-Baselines3's schedule:
-``QValueActor`` over an ``MLP`` (ReLU), ``DQNLoss`` (Huber, TD(0) targets from a
-target network), ``HardUpdate`` (the target copies the online network every
-``target_update_interval`` env steps), Adam with the gradient norm clipped at
-``max_grad_norm``; epsilon-greedy with epsilon annealed linearly from ``eps_init``
-to ``eps_end`` over ``exploration_steps`` env steps.
+"""DQN (Mnih et al. 2015) with Stable-Baselines3's schedule: a Q-network (TorchRL's
+``MLP``, ReLU), the Huber loss of TD(0) targets from a target network (as TorchRL's
+``DQNLoss``, tested equal), the target copied from the online network every
+``target_update_interval`` env steps (as ``HardUpdate``), Adam with the gradient norm
+clipped at ``max_grad_norm``; epsilon-greedy with epsilon annealed linearly from
+``eps_init`` to ``eps_end`` over ``exploration_steps`` env steps.
 
 All seeds learn as one (``neural``: the Q-networks stacked over seeds, per-seed
-losses, clipping, replay and random streams). Per env step of the active seeds:
+losses, clipping, replay and random streams; why the loss is not ``DQNLoss`` itself). Per env step of the active seeds:
 act epsilon-greedily, store the transition, count the step; once ``learning_starts``
 steps are taken and a minibatch is stored, every ``train_freq``-th step makes
 ``gradient_steps`` updates on minibatches of ``batch_size`` per seed.
@@ -22,13 +22,11 @@ from typing import Sequence, Tuple
 import torch
 from tensordict import TensorDict
 from torch import nn
-from torchrl.data import Categorical
-from torchrl.modules import MLP, QValueActor
-from torchrl.objectives import DQNLoss, HardUpdate
+from torchrl.modules import MLP
 
 from ..config import setting
 from ..rng import SeedStreams, stream_id
-from .neural import SeedBatchedLearner, SeedStack, build_per_seed, clip_grad_norm_per_seed, seed_mean
+from .neural import SeedBatchedLearner, SeedStack, Target, build_per_seed, clip_grad_norm_per_seed, seed_mean
 
 
 @dataclass
@@ -67,17 +65,13 @@ class DQN(SeedBatchedLearner):
     def __init__(self, cfg: DQNConfig, seeds: Sequence[int], obs_dim: int, n_actions: int):
         super().__init__(seeds, cfg.buffer_size)
         self.cfg, self.batch_size, self.n_actions = cfg, cfg.batch_size, n_actions
-        nets = build_per_seed(lambda: MLP(in_features=obs_dim, out_features=n_actions, num_cells=list(cfg.hidden),
-                                          activation_class=nn.ReLU), self.seeds)
-        spec = Categorical(n_actions)
-        self.actor = QValueActor(SeedStack(nets), in_keys=["observation"], spec=spec)
-        self.loss = DQNLoss(self.actor, loss_function="smooth_l1", delay_value=True, action_space=spec,
-                            reduction="none")
-        self.loss.make_value_estimator(gamma=cfg.gamma)
-        # HardUpdate copies on the (interval + 1)-th call of step(), then every interval + 1
-        self.target = HardUpdate(self.loss, value_network_update_interval=cfg.target_update_interval - 1)
-        self.params = list(self.loss.value_network_params.values(True, True))  # the online network's
-        self.optimizers = [torch.optim.Adam(self.params, lr=cfg.lr)]
+        qnet = SeedStack(build_per_seed(lambda: MLP(in_features=obs_dim, out_features=n_actions,
+                                                    num_cells=list(cfg.hidden), activation_class=nn.ReLU),
+                                        self.seeds))
+        self.nets = nn.ModuleDict(dict(qnet=qnet, target=Target(qnet)))
+        self.qnet, self.target = qnet, self.nets["target"]
+        self.params = list(qnet.parameters())
+        self.optimizers = [torch.optim.Adam(self.params, lr=cfg.lr, foreach=True)]
         self.explore_rng = SeedStreams(self.seeds, stream_id("dqn.explore"))
 
     @property
@@ -89,7 +83,7 @@ class DQN(SeedBatchedLearner):
     def greedy(self, obs: torch.Tensor) -> torch.Tensor:
         """argmax_a Q(obs, a) per seed: obs (S, obs_dim) -> (S,) long."""
         with torch.no_grad():
-            return self.actor(TensorDict({"observation": obs.to(torch.float32)}, batch_size=obs.shape[:1]))["action"]
+            return self.qnet(obs.to(torch.float32)).argmax(-1)
 
     def act(self, td) -> torch.Tensor:
         u = self.explore_rng.uniform(2)                           # (S, 2): explore?, which action
@@ -102,24 +96,31 @@ class DQN(SeedBatchedLearner):
         ready = self.steps >= cfg.learning_starts and len(self.replay) >= cfg.batch_size
         return cfg.gradient_steps if ready and self.steps % cfg.train_freq == 0 else 0
 
+    def td_loss(self, batch: TensorDict) -> torch.Tensor:
+        """Per element (S, B): Huber(Q(s, a) - (r + gamma (1 - terminated) max_a' Q_target(s', a')))."""
+        nxt = batch["next"]
+        q = self.qnet(batch["observation"]).gather(-1, batch["action"].unsqueeze(-1)).squeeze(-1)
+        with torch.no_grad():
+            q_next = self.target(nxt["observation"]).max(-1).values
+            y = nxt["reward"].squeeze(-1) + self.cfg.gamma * (~nxt["terminated"].squeeze(-1)) * q_next
+        return nn.functional.smooth_l1_loss(q, y, reduction="none")
+
     def update(self, batch: TensorDict) -> None:
-        loss = seed_mean(self.loss(batch)["loss"])
         optim = self.optimizers[0]
         optim.zero_grad()
-        loss.backward()
+        seed_mean(self.td_loss(batch)).backward()
         clip_grad_norm_per_seed(self.params, self.cfg.max_grad_norm)
         optim.step()
 
     def after_step(self) -> None:
-        self.target.step()  # counts env steps; copies every target_update_interval-th
+        if self.steps % self.cfg.target_update_interval == 0:
+            self.target.copy_()
 
     def state_dict(self) -> dict:
-        return {**super().state_dict(), "target_counter": self.target.counter,
-                "explore_rng": self.explore_rng.state_dict()}
+        return {**super().state_dict(), "explore_rng": self.explore_rng.state_dict()}
 
     def load_state_dict(self, state: dict) -> None:
         super().load_state_dict(state)
-        self.target.counter = int(state["target_counter"])
         self.explore_rng.load_state_dict(state["explore_rng"])
 
     @classmethod
