@@ -33,7 +33,7 @@ import torch
 
 from trl_dgpq.analysis.runs import read_csv_exact
 
-from .experiment import build, check_memory, describe, load_sections
+from .experiment import build, check_memory, describe, load_sections, use_threads
 from .online import OnlineCollector
 
 CONFIG, EPISODES, STATUS, CHECKPOINT = "config.json", "episodes.csv", "status.json", "checkpoint.pt"
@@ -297,6 +297,7 @@ def _alive(pid) -> bool:
 
 def _execute(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: bool) -> pd.DataFrame:
     run = load_sections(config)[0]  # with defaults for settings newer than a recorded config
+    use_threads(config)
     env, agent = build(config)
     collector = OnlineCollector(env, agent, run.episodes, progress=progress, desc=describe(config),
                                 env_steps=run.env_steps)

@@ -130,8 +130,8 @@ def plan(experiments: Dict[str, dict], out, seeds_per_job: Optional[int]) -> Lis
 
 
 def _with_seeds(config: dict, seeds: List[int]) -> dict:
-    """The experiment's config for one job's seeds."""
-    return {**config, "run": {**config["run"], "seeds": seeds}}
+    """The experiment's config for one job's seeds, at one thread (see the module doc)."""
+    return {**config, "run": {**config["run"], "seeds": seeds, "threads": 1}}
 
 
 # ------------------------------------------------------------------ one job

@@ -6,6 +6,8 @@
     python scripts/bench.py kernel  # manifold vs RBF GP regression on discontinuous functions
     python scripts/bench.py push    # block pushing: agent steps per second, share of physics
     python scripts/bench.py qhat    # one evaluation of Q̂ (Eq. 7) against the pairs it holds
+    python scripts/bench.py neural  # DQN and DDPG seed-batched vs the per-seed code, and SB3's DQN
+    python scripts/bench.py threads # ms per seed-step at 1 and 2 torch threads, quiet and loaded
 """
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ import argparse
 import json
 import math
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -387,6 +390,12 @@ def bench_imports(args):
     print(f"wrote {path}")
 
 
+def _neural():
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import bench_neural
+    return bench_neural
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="what", required=True)
@@ -430,7 +439,27 @@ def main(argv=None):
     m.add_argument("--checkout", default=None, help="another checkout to time (default: this one)")
     m.add_argument("--out", default=None)
     m.set_defaults(fn=bench_imports)
+    n = sub.add_parser("neural", help="DQN (CartPole, zoo settings) and DDPG (liquidation): new vs old vs SB3")
+    n.add_argument("--seed-counts", nargs="+", type=int, default=[1, 4, 10])
+    n.add_argument("--dqn-steps", type=int, default=20_000, help="env steps per seed")
+    n.add_argument("--ddpg-episodes", type=int, default=100)
+    n.add_argument("--threads", type=int, default=1, help="torch threads in every run (the same for all)")
+    n.add_argument("--old-rev", default="9d9c0f1", help="the one-learner-per-seed code to compare with")
+    n.add_argument("--trees", nargs="+", default=["new", "old"], choices=["new", "old"])
+    n.add_argument("--parts", nargs="+", default=["dqn", "sb3", "ddpg"], choices=["dqn", "sb3", "ddpg"])
+    n.add_argument("--sb3-python", default=None, help="a Python with stable-baselines3 (see bench_neural.py)")
+    n.add_argument("--out", default=None)
+    n.set_defaults(fn=lambda a: _neural().bench_neural(a))
+    t = sub.add_parser("threads", help="ms per seed-step at 1 and 2 threads, quiet and loaded")
+    t.add_argument("--agents", nargs="+", default=["dgpq", "dqn", "ddpg"], choices=["dgpq", "dqn", "ddpg"])
+    t.add_argument("--seed-counts", nargs="+", type=int, default=None,
+                   help="default: DGPQ 1 and 64, DQN 1 and 10, DDPG 1 and 4")
+    t.add_argument("--burners", type=int, default=2, help="busy processes beside the loaded measurements")
+    t.add_argument("--out", default=None)
+    t.set_defaults(fn=lambda a: _neural().bench_threads(a))
     args = p.parse_args(argv)
+    if args.what == "threads" and args.seed_counts is None:
+        args.seed_counts = dict(dgpq=[1, 64], dqn=[1, 10], ddpg=[1, 4])
     if args.what == "dgpq" and args.quick:
         args.steps, args.repeats, args.backends = min(args.steps, 2000), min(args.repeats, 2), ["sparse"]
     torch.set_num_threads(torch.get_num_threads())

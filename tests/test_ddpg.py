@@ -25,7 +25,7 @@ def test_the_course_sizes_stacked_over_seeds():
     env, agent = build(resolve_config(env="liquidation", agent="ddpg", seeds=[0, 1]))
     assert isinstance(agent.replay.storage, LazyTensorStorage) and agent.replay.capacity == 10_000
     widths = [tuple(v.shape) for k, v in agent.actor.state_dict().items() if k.endswith("weight")]
-    assert widths == [(2, 24, 8), (2, 48, 24), (2, 1, 48)]  # two seeds' 8 -> 24 -> 48 -> 1
+    assert widths == [(2, 8, 24), (2, 24, 48), (2, 48, 1)]  # two seeds' 8 -> 24 -> 48 -> 1 (in, out)
     a = agent.act(env.reset())
     assert a.shape == (2, 1) and a.dtype == torch.float64 and ((0 <= a) & (a <= 1)).all()
 
@@ -63,8 +63,8 @@ def test_losses_and_soft_update_equal_torchrls_on_one_seeds_networks():
     ours = {k.split(".", 2)[2]: p[1] for k, p in agent.nets["target_critic"].named_parameters()}
     theirs = {k.split(".", 1)[1]: p for k, p in reference.target_value_network_params.flatten_keys(".").items()}
     assert ours.keys() == theirs.keys() and len(ours) == 6
-    for k in ours:
-        torch.testing.assert_close(ours[k], theirs[k], rtol=1e-6, atol=1e-7)
+    for k in ours:  # ours stack each weight transposed, (in, out)
+        torch.testing.assert_close(ours[k].T if k.endswith("weight") else ours[k], theirs[k], rtol=1e-6, atol=1e-7)
 
 
 def ou_trace(cfg, seeds, new_episode_at=(), steps=6):
@@ -112,7 +112,7 @@ def test_course_initial_weights_use_out_features():
     weights = {k: v for k, v in params.items() if k.endswith("weight")}
     assert len(weights) == 6
     for k, w in weights.items():
-        out = w.shape[1]
+        out = w.shape[2]  # stacked (S, in, out)
         lim = 3e-3 if out == 1 else 1 / math.sqrt(out)
         assert w.abs().max() <= lim and w.abs().max() > 0.9 * lim, k
     default = DDPG(DDPGConfig(), list(range(4)), 8, BOX).actor.state_dict()

@@ -1,0 +1,204 @@
+"""The neural baselines' benchmarks (``bench.py neural`` and ``bench.py threads``).
+
+Each measurement runs in a child process, so that a checkout of another commit
+(``--old-rev``: the one-learner-per-seed code) or another environment
+(``--sb3-python``: Stable-Baselines3, installed there and not in this package's
+dependencies) can be timed by the same code:
+
+    python -m venv /tmp/sb3 && echo "$PWD/.venv/lib/python3.11/site-packages" \\
+        > /tmp/sb3/lib/python3.11/site-packages/suite.pth && /tmp/sb3/bin/pip install --no-deps stable-baselines3
+    python scripts/bench.py neural --sb3-python /tmp/sb3/bin/python
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+
+# rl-baselines3-zoo's CartPole-v1 DQN (hyperparams/dqn.yml), epsilon over 16% of the budget
+ZOO_CARTPOLE = dict(lr=2.3e-3, batch_size=64, buffer_size=100_000, learning_starts=1_000, gamma=0.99,
+                    target_update_interval=10, train_freq=256, gradient_steps=128, eps_end=0.04, hidden=(256, 256))
+
+# A run of ours (this checkout or another one on PYTHONPATH): wall time of run_experiment,
+# seed-steps, and the last 10 episodes' returns per seed.
+OURS = r"""
+import json, sys, time, torch
+spec = json.loads(sys.argv[1])
+torch.set_num_threads(spec["threads"])
+from trl_dgpq.collectors.experiment import resolve_config, run_experiment
+cfg = resolve_config(**spec["config"])
+cfg["run"]["threads"] = spec["threads"]
+t0 = time.perf_counter()
+df = run_experiment(cfg, progress=False, max_total_steps=spec.get("max_total_steps"))
+wall = time.perf_counter() - t0
+last10 = df.groupby("seed")["return"].apply(lambda r: float(r.tail(10).mean())).tolist()
+print(json.dumps(dict(wall_s=wall, seed_steps=int(df.steps.sum()), episodes=len(df), last10=last10,
+                      step_seconds_sum=float(sum(df.attrs["step_seconds"])),
+                      batched_steps=len(df.attrs["step_seconds"]))))
+"""
+
+# Stable-Baselines3's DQN on the zoo's settings, its seeds one after another as its users run them.
+SB3 = r"""
+import json, sys, time, torch
+import gymnasium as gym
+from stable_baselines3 import DQN
+spec = json.loads(sys.argv[1])
+torch.set_num_threads(spec["threads"])
+z = spec["zoo"]
+out = []
+for seed in range(spec["seeds"]):
+    env = gym.make("CartPole-v1")
+    model = DQN("MlpPolicy", env, learning_rate=z["lr"], batch_size=z["batch_size"], buffer_size=z["buffer_size"],
+                learning_starts=z["learning_starts"], gamma=z["gamma"], target_update_interval=z["target_update_interval"],
+                train_freq=z["train_freq"], gradient_steps=z["gradient_steps"], exploration_fraction=0.16,
+                exploration_final_eps=z["eps_end"], policy_kwargs=dict(net_arch=list(z["hidden"])), seed=seed,
+                verbose=0, device="cpu")
+    t0 = time.perf_counter()
+    model.learn(spec["steps"])
+    wall = time.perf_counter() - t0
+    rets = [ep["r"] for ep in model.ep_info_buffer][-10:]
+    out.append(dict(seed=seed, wall_s=wall, last10=float(sum(rets) / len(rets))))
+print(json.dumps(out))
+"""
+
+
+def child(code: str, spec: dict, python: str = sys.executable, tree: Path = REPO) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(tree), OMP_NUM_THREADS=str(spec["threads"]))
+    res = subprocess.run([python, "-c", code, json.dumps(spec)], env=env, cwd=tempfile.gettempdir(),
+                         capture_output=True, text=True)
+    if res.returncode:
+        raise RuntimeError(f"benchmark child failed:\n{res.stderr[-3000:]}")
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def old_tree(rev: str) -> Path:
+    """A detached worktree of ``rev`` (made once, in the temp dir)."""
+    path = Path(tempfile.gettempdir()) / f"trl-dgpq-{rev}"
+    if not path.exists():
+        subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", str(path), rev], check=True,
+                       capture_output=True)
+    return path
+
+
+def dqn_spec(S: int, steps: int, threads: int) -> dict:
+    agent = dict(ZOO_CARTPOLE, exploration_steps=int(0.16 * steps))
+    return dict(threads=threads, config=dict(env="gym:CartPole-v1", agent="dqn", seeds=list(range(S)),
+                                             episodes=10 ** 6, env_steps=steps, **agent))
+
+
+def bench_neural(args) -> None:
+    load = os.getloadavg()
+    print(f"load average at start {load}; torch threads in every run: {args.threads}")
+    results = dict(meta=dict(load_average_start=load, threads=args.threads, old_rev=args.old_rev,
+                             dqn_steps=args.dqn_steps, ddpg_episodes=args.ddpg_episodes), dqn=[], ddpg=[], sb3=None)
+    trees = {"new": REPO, "old": old_tree(args.old_rev)}
+    if "dqn" in args.parts:
+        print(f"DQN, CartPole-v1, the zoo's settings, {args.dqn_steps} env steps per seed (whole runs)")
+        print(f"{'seeds':>6} {'code':>5} {'wall s':>8} {'ms/seed-step':>13} {'last-10 return (median)':>24}")
+        for S in args.seed_counts:
+            for code in args.trees:
+                r = child(OURS, dqn_spec(S, args.dqn_steps, args.threads), tree=trees[code])
+                r.update(seeds=S, code=code, ms_per_seed_step=r["wall_s"] / r["seed_steps"] * 1e3)
+                results["dqn"].append(r)
+                med = sorted(r["last10"])[len(r["last10"]) // 2]
+                print(f"{S:>6} {code:>5} {r['wall_s']:>8.1f} {r['ms_per_seed_step']:>13.3f} {med:>24.1f}", flush=True)
+    if "sb3" in args.parts and args.sb3_python:
+        S = max(args.seed_counts)
+        runs = child(SB3, dict(threads=args.threads, seeds=S, steps=args.dqn_steps, zoo=ZOO_CARTPOLE),
+                     python=args.sb3_python)
+        total = sum(r["wall_s"] for r in runs)
+        results["sb3"] = dict(seeds=S, runs=runs, wall_s=total, ms_per_seed_step=total / (S * args.dqn_steps) * 1e3)
+        print(f"SB3 DQN, {S} seeds one after another: {total:.1f} s, "
+              f"{results['sb3']['ms_per_seed_step']:.3f} ms per seed-step", flush=True)
+    if "ddpg" in args.parts:
+        print(f"DDPG, liquidation (shortfall), 4 seeds, {args.ddpg_episodes} episodes")
+        for code in args.trees:
+            spec = dict(threads=args.threads, config=dict(env="liquidation", agent="ddpg", seeds=[0, 1, 2, 3],
+                                                          episodes=args.ddpg_episodes))
+            r = child(OURS, spec, tree=trees[code])
+            r.update(code=code, ms_per_seed_step=r["wall_s"] / r["seed_steps"] * 1e3)
+            results["ddpg"].append(r)
+            print(f"{code:>5}: {r['wall_s']:.1f} s, {r['ms_per_seed_step']:.3f} ms per seed-step", flush=True)
+    summarise(results)
+    results["meta"]["load_average_end"] = os.getloadavg()
+    out = Path(args.out or "bench-neural.json")
+    out.write_text(json.dumps(results, indent=1))
+    print(f"load average at end {results['meta']['load_average_end']}; wrote {out}")
+
+
+def summarise(results: dict) -> None:
+    """The issue's ratios, each from runs of this one invocation."""
+    by = {(r["seeds"], r["code"]): r for r in results["dqn"]}
+    ratios = {}
+    for S in sorted({s for s, _ in by}):
+        if (S, "new") in by and (S, "old") in by:
+            ratios[f"dqn_old_over_new_S{S}"] = by[S, "old"]["wall_s"] / by[S, "new"]["wall_s"]
+    sb3 = results.get("sb3")
+    if sb3 and (sb3["seeds"], "new") in by:
+        ratios["dqn_sb3_over_new"] = sb3["wall_s"] / by[sb3["seeds"], "new"]["wall_s"]
+    ddpg = {r["code"]: r for r in results["ddpg"]}
+    if {"old", "new"} <= ddpg.keys():
+        ratios["ddpg_old_over_new"] = ddpg["old"]["ms_per_seed_step"] / ddpg["new"]["ms_per_seed_step"]
+    results["ratios"] = ratios
+    for k, v in ratios.items():
+        print(f"{k:>24}: {v:.2f}x")
+
+
+# One point of the threads measurement: ms per seed-step over a window of batched steps
+# after a warm-up (learning under way), at the given threads.
+WINDOW = r"""
+import json, sys, time, torch
+spec = json.loads(sys.argv[1])
+torch.set_num_threads(spec["threads"])
+from trl_dgpq.collectors.experiment import build, resolve_config
+from trl_dgpq.collectors.online import OnlineCollector
+env, agent = build(resolve_config(**spec["config"]))
+col = OnlineCollector(env, agent, 10 ** 9, progress=False)
+col.max_total_steps = spec["warmup"]
+col.run()
+col.step_seconds.clear()
+col.max_total_steps = spec["window"]
+col.run()
+S = env.batch_size[0]
+print(json.dumps(dict(ms_per_seed_step=sum(col.step_seconds) / len(col.step_seconds) / S * 1e3)))
+"""
+
+THREAD_CASES = {
+    "dgpq": dict(env="square", agent="dgpq", preset="shaped", warmup=300, window=600),
+    "dqn": dict(env="gym:CartPole-v1", agent="dqn", warmup=1_100, window=1_024, **ZOO_CARTPOLE),
+    "ddpg": dict(env="liquidation", agent="ddpg", warmup=300, window=1_000),
+}
+
+
+def bench_threads(args) -> None:
+    """ms per seed-step at 1 and 2 threads, quiet and with ``--burners`` busy processes
+    beside (a loaded machine), for each agent and seed count."""
+    results = []
+    print(f"{'agent':>6} {'seeds':>6} {'load':>7} {'1 thread':>9} {'2 threads':>10}  (ms per seed-step)")
+    for load in ("quiet", "loaded"):
+        burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in
+                   range(args.burners if load == "loaded" else 0)]
+        try:
+            for agent in args.agents:
+                case = dict(THREAD_CASES[agent])
+                warmup, window = case.pop("warmup"), case.pop("window")
+                for S in args.seed_counts[agent] if isinstance(args.seed_counts, dict) else args.seed_counts:
+                    row = dict(agent=agent, seeds=S, load=load, load_average=os.getloadavg())
+                    for threads in (1, 2):
+                        spec = dict(threads=threads, warmup=warmup, window=window,
+                                    config=dict(case, seeds=list(range(S)), episodes=10 ** 9))
+                        row[f"threads_{threads}"] = child(WINDOW, spec)["ms_per_seed_step"]
+                    results.append(row)
+                    print(f"{agent:>6} {S:>6} {load:>7} {row['threads_1']:>9.3f} {row['threads_2']:>10.3f}",
+                          flush=True)
+        finally:
+            for b in burners:
+                b.kill()
+    out = Path(args.out or "bench-threads.json")
+    out.write_text(json.dumps(dict(meta=dict(burners=args.burners, cpus=os.cpu_count()), results=results), indent=1))
+    print(f"wrote {out}")
