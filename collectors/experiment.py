@@ -80,9 +80,9 @@ class RunConfig:
                                 "that reaches it (0: none; episodes still caps)", within="[0, inf)")
     checkpoint_every: int = setting(10, "checkpoint every K episodes per seed (0: only on interrupt and at the end)",
                                     within="[0, inf)")
-    threads: int = setting(0, "torch intra-op threads (0: the agent's measured default for this many seeds, "
-                              "README \"Threads\"; a sweep's jobs use 1); the number used is recorded",
-                           within="[0, inf)")
+    threads: int = setting(1, "torch intra-op threads (README \"Threads\": 1 was fastest for every agent, seed "
+                              "count and load measured but one, and 2 up to 20x slower on a loaded machine)",
+                           within="[1, inf)")
 
 
 def classes(run: dict):
@@ -153,22 +153,12 @@ def resolve_config(settings: Optional[Dict[str, Any]] = None, base: Optional[dic
     env_cfg = with_overrides(env_cfg, given["env"])
     info = env_cls.describe(env_cfg)  # checks the env's settings
     agent_cfg = agent_cls.resolve_config(with_overrides(agent_cfg, {**implied, **given["agent"]}), info)
-    if not run.threads:
-        run = with_overrides(run, {"threads": default_threads(agent_cls, len(run.seeds))})
     return {"run": to_dict(run), "env": to_dict(env_cfg), "agent": to_dict(agent_cfg)}
-
-
-def default_threads(agent_cls, num_seeds: int) -> int:
-    """The agent's choice of torch threads for ``num_seeds`` seeds (``threads(S)``; 1 for an
-    agent without one), never more than this machine's cores."""
-    import os
-    choose = getattr(agent_cls, "threads", None)
-    return max(1, min(choose(num_seeds) if choose else 1, os.cpu_count() or 1))
 
 
 def use_threads(config: dict) -> None:
     """Set torch's intra-op threads to the config's (a config from before the setting: leave them)."""
-    n = config["run"].get("threads", 0)
+    n = config["run"].get("threads")
     if n:
         import torch
         torch.set_num_threads(int(n))

@@ -12,8 +12,15 @@ PRESETS = {
     # (about 80 episodes of 60 trades).
     "dqn": {"shortfall": {"env": dict(action_levels=21),
                           "agent": dict(SMALL_DQN, gamma=1.0, exploration_steps=5_000)}},
-    # The course's DDPG (DDPGConfig's defaults), on either reward.
-    "ddpg": {"shortfall": {}, "utility-ratio": UTILITY_RATIO},
+    # The course's DDPG sizes and rates (DDPGConfig's defaults, with its corrections), on either
+    # reward; "course": the course's own agent as the seed report ran it (agents/ddpg.py: uniform
+    # OU increments never reset, its initial weights, critic then actor, learning from more than a
+    # minibatch) on the report's reward. Its OU sigma 0.2 was in tanh units [-1, 1]; the action box
+    # here is [0, 1], half as wide, so 0.1 (the same process, halved exactly).
+    "ddpg": {"shortfall": {}, "utility-ratio": UTILITY_RATIO,
+             "course": {"env": dict(reward="utility-ratio"),
+                        "agent": dict(ou_noise="uniform", ou_reset=False, ou_sigma=0.1, init="course",
+                                      update="critic-then-actor", start_above_batch=True)}},
     "dgpq": {
         # Tuned on the shortfall reward (README "Optimal liquidation" says why): the state is
         # (trades left, shares left) -- in a random walk past returns predict nothing, so the

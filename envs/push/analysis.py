@@ -61,7 +61,7 @@ def table(runs, labels, last: int) -> str:
 
 # ------------------------------------------------------------ the reproduction (scripts/reproduce.py)
 # (seeds, episodes) at each scale; an experiment may name its own as a third item
-SCALES = {"smoke": (1, 3), "quick": (6, 60), "full": (10, 100)}
+SCALES = {"smoke": (1, 3), "quick": (6, 60), "full": (10, 100), "report": (10, 100)}
 REPRODUCE = [
     ("push-rbf", dict(agent="dgpq", preset="shaped")),
     ("push-manifold", dict(agent="dgpq", preset="manifold")),

@@ -11,7 +11,7 @@ THRESHOLD = Threshold("steps", "<=", 25, 10, "mean steps per episode <= 25 over 
 
 # ------------------------------------------------------------ the reproduction (scripts/reproduce.py)
 # (seeds, episodes) at each scale; an experiment may name its own as a third item
-SCALES = {"smoke": (1, 3), "quick": (6, 50), "full": (10, 100)}
+SCALES = {"smoke": (1, 3), "quick": (6, 50), "full": (10, 100), "report": (10, 100)}
 REPRODUCE = [
     ("square-shaped", dict(agent="dgpq", preset="shaped")),
     ("square-report", dict(agent="dgpq", preset="report")),

@@ -133,7 +133,8 @@ class DDPG(SeedBatchedLearner):
                                        target_critic=Target(critic)))
         self.actor, self.critic = actor, critic
         self.actor_optim = torch.optim.Adam(actor.parameters(), lr=cfg.actor_lr, foreach=True)
-        self.critic_optim = torch.optim.Adam(critic.parameters(), lr=cfg.critic_lr, foreach=True)
+        self.critic_params = list(critic.parameters())
+        self.critic_optim = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr, foreach=True)
         self.optimizers = [self.actor_optim, self.critic_optim]
         self.noise = torch.zeros(len(self.seeds), act_dim)
         self.noise_rng = SeedStreams(self.seeds, stream_id("ddpg.ou"))
@@ -169,11 +170,13 @@ class DDPG(SeedBatchedLearner):
     def actor_loss(self, batch: TensorDict) -> torch.Tensor:
         """Per element (S, B): -Q(s, actor(s)), the critic held fixed (its parameters get no gradient)."""
         obs = batch["observation"]
-        critic = self.critic.requires_grad_(False)
+        for p in self.critic_params:
+            p.requires_grad_(False)
         try:
-            return -critic(obs, self.actor(obs)).squeeze(-1)
+            return -self.critic(obs, self.actor(obs)).squeeze(-1)
         finally:
-            critic.requires_grad_(True)
+            for p in self.critic_params:
+                p.requires_grad_(True)
 
     def update(self, batch: TensorDict) -> None:
         if self.cfg.update == "critic-then-actor":

@@ -145,19 +145,20 @@ class Target(nn.Module):
     def __init__(self, net: nn.Module):
         super().__init__()
         self.net = copy.deepcopy(net).requires_grad_(False)
-        self._source = [net]  # in a list: not a submodule (saved once, as the online net)
+        # (plain lists, not submodules: the online net is saved once, as itself)
+        self._pairs = (list(self.net.parameters()), list(net.parameters()))
 
     def forward(self, *inputs):
         return self.net(*inputs)
 
     @torch.no_grad()
     def copy_(self) -> None:
-        torch._foreach_copy_(list(self.net.parameters()), list(self._source[0].parameters()))
+        torch._foreach_copy_(*self._pairs)
 
     @torch.no_grad()
     def soft_update_(self, tau: float) -> None:
         """target <- target + tau (online - target), as TorchRL's ``SoftUpdate``."""
-        torch._foreach_lerp_(list(self.net.parameters()), list(self._source[0].parameters()), tau)
+        torch._foreach_lerp_(*self._pairs, tau)
 
 
 def optimizer_tensors(optim: torch.optim.Optimizer) -> List[torch.Tensor]:

@@ -1,12 +1,16 @@
 """Reproduce every experiment of the seed report as one sweep, then its figures and REPORT.md.
 
     python scripts/reproduce.py                    # --scale quick: ~10 minutes on 2 cores
-    python scripts/reproduce.py --scale full       # the report's lengths (hours)
+    python scripts/reproduce.py --scale full       # 1,000 liquidation episodes, 100 on the square and push
+    python scripts/reproduce.py --scale report     # the seed report's own lengths: liquidation 11,000
+                                                   # episodes, DDPG at gamma 0.01 too (many hours: run it
+                                                   # in parts, each call continues where the last stopped)
     python scripts/reproduce.py --out runs/repro   # run it again: continues what did not finish
 
 Each domain with a reproduction (``REPRODUCE``, ``SCALES`` and ``reproduce_section`` in
 ``envs/<domain>/analysis.py``: the square's presets and kernels, Figures 2-4; block
-pushing, Figure 5; liquidation's agents at both discounts, Figures 6-7) contributes its
+pushing, Figure 5; liquidation's agents at both discounts, the course's own DDPG, Figures
+6-7) contributes its
 experiments to one sweep (``collectors/sweep.py``: a pool of worker processes, each
 experiment one job) and a section to REPORT.md, which sets our numbers beside the seed
 report's claims and GWH14's, with a sentence on whether they agree. The quick scale
@@ -25,7 +29,7 @@ from trl_dgpq.collectors import runner, sweep
 from trl_dgpq.collectors.experiment import resolve_config
 from trl_dgpq.envs import domains
 
-SCALES = ("smoke", "quick", "full")  # smoke: for tests
+SCALES = ("smoke", "quick", "full", "report")  # smoke: for tests; report: the seed report's own lengths
 
 
 def reproductions() -> list:
@@ -39,14 +43,17 @@ def experiments(scale: str) -> dict:
     out = {}
     for d, analysis in reproductions():
         for name, settings, *own in analysis.REPRODUCE:
-            seeds, episodes = (own[0] if own else analysis.SCALES)[scale]
+            sizes = (own[0] if own else analysis.SCALES).get(scale)
+            if sizes is None:  # an experiment of some scales only
+                continue
+            seeds, episodes = sizes
             out[name] = resolve_config({**settings, "env": d.examples()[0], "seeds": seeds, "episodes": episodes})
     return out
 
 
 def scale_label(scale: str) -> str:
     note = ("fewer seeds and episodes than the seed report (a smoke-sized reproduction; numbers are noisier)"
-            if scale != "full" else "the seed report's lengths")
+            if scale not in ("full", "report") else "the seed report's lengths")
     sizes = [f"{d.name} {a.SCALES[scale][0]} seeds x {a.SCALES[scale][1]} episodes" for d, a in reproductions()]
     return f"*Scale: {scale}* -- {note}: " + ", ".join(sizes) + " (some agents fewer: see the tables)."
 
@@ -57,8 +64,10 @@ def write_report(out: Path, scale: str, wall: float) -> Path:
             f"--scale {scale}` on {time.strftime('%Y-%m-%d %H:%M')}, commit {prov['git']['commit']}"
             f"{' (dirty)' if prov['git']['dirty'] else ''}, {os.cpu_count()} cores; sweep wall time {wall / 60:.1f} "
             "min (this invocation).\n\n")
-    title = f"{scale} scale" + (" (fewer seeds and episodes than the seed report)" if scale != "full" else "")
-    sections = [analysis.reproduce_section({name: load_run(out / name) for name, *_ in analysis.REPRODUCE},
+    title = f"{scale} scale" + (" (fewer seeds and episodes than the seed report)"
+                                if scale not in ("full", "report") else "")
+    sections = [analysis.reproduce_section({name: load_run(out / name) for name, *_ in analysis.REPRODUCE
+                                            if (out / name).is_dir()},
                                            out, scale_label(scale), title)
                 for _, analysis in reproductions()]
     path = out / "REPORT.md"
