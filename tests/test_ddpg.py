@@ -123,10 +123,11 @@ def test_course_initial_weights_use_out_features():
 def batch_of(n, S=1, obs_dim=3, seed=0):
     g = torch.Generator().manual_seed(seed)
     f = lambda *s: torch.rand(*s, generator=g)  # noqa: E731
-    flag = torch.zeros(S, n, 1, dtype=torch.bool)
+    terminated = f(S, n, 1) < 0.3
+    done = terminated | (f(S, n, 1) < 0.3)  # some truncated: they still bootstrap
     return TensorDict({"observation": f(S, n, obs_dim), "action": f(S, n, 1),
-                       "next": {"observation": f(S, n, obs_dim), "reward": f(S, n, 1), "done": flag,
-                                "terminated": flag.clone()}}, batch_size=[S, n])
+                       "next": {"observation": f(S, n, obs_dim), "reward": f(S, n, 1), "done": done,
+                                "terminated": terminated}}, batch_size=[S, n])
 
 
 def test_critic_then_actor_steps_the_actor_against_the_updated_critic():

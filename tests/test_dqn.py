@@ -14,11 +14,11 @@ from trl_dgpq.agents.neural import build_per_seed
 from trl_dgpq.collectors.experiment import resolve_config
 
 
-def transition(obs_dim=3, n=1, terminated=False):
+def transition(obs_dim=3, n=1, terminated=False, truncated=False):
     flag = torch.full((n, 1), terminated)
     return TensorDict({"observation": torch.rand(n, obs_dim), "action": torch.randint(2, (n,)),
                        "next": {"observation": torch.rand(n, obs_dim), "reward": torch.rand(n, 1),
-                                "done": flag, "terminated": flag.clone()}}, batch_size=[n])
+                                "done": flag | truncated, "terminated": flag.clone()}}, batch_size=[n])
 
 
 def trace(cfg, steps, read, seeds=(0,)):
@@ -82,7 +82,8 @@ def test_td_target_by_hand_and_as_torchrls_dqn_loss():
     """Per element: the Huber loss of Q(s, a) - (r + gamma (1 - terminated) max_a' Q_target(s', a')),
     seed 1's from seed 1's own networks; and TorchRL's DQNLoss on that seed's networks agrees."""
     agent = DQN(DQNConfig(hidden=(8,), gamma=0.7, batch_size=4, buffer_size=10), [3, 8], 3, 2)
-    batch = torch.stack([torch.cat([transition(n=3), transition(terminated=True, n=2)]) for _ in range(2)])
+    batch = torch.stack([torch.cat([transition(n=2), transition(truncated=True), transition(terminated=True, n=2)])
+                         for _ in range(2)])  # a truncated step (a time limit) still bootstraps
     with torch.no_grad():
         for p in agent.target.parameters():
             p.mul_(0.5)  # target != online

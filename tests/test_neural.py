@@ -107,9 +107,9 @@ def test_seed_alone_equals_seed_in_batches_of_2_3_8(cfg):
         config = resolve_config(seeds=seeds, **cfg)
         env, agent = build(config)
         df = OnlineCollector(env, agent, cfg["episodes"], progress=False).run()
-        state = agent.nets.state_dict()
+        state = {**agent.nets.state_dict(), "updates": agent.updates}
         return df[df.seed == 1].reset_index(drop=True).drop(columns=list(TIMING_COLUMNS)), \
-            {k: v[seeds.index(1)] for k, v in state.items() if k.endswith(("weight", "bias"))}, df
+            {k: v[seeds.index(1)] for k, v in state.items() if k.endswith(("weight", "bias", "updates"))}, df
     alone, alone_state, _ = run([1])
     assert alone.updates.iloc[-1] > 20
     for seeds in ([0, 1], [5, 1, 2], [3, 4, 5, 6, 7, 8, 9, 1]):
