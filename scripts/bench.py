@@ -8,6 +8,7 @@
     python scripts/bench.py qhat    # one evaluation of Q̂ (Eq. 7) against the pairs it holds
     python scripts/bench.py neural  # DQN and DDPG seed-batched vs the per-seed code, and SB3's DQN
     python scripts/bench.py threads # ms per seed-step at 1 and 2 torch threads, quiet and loaded
+    python scripts/bench.py step-parts  # a learning step: the update and the work around it
 """
 from __future__ import annotations
 
@@ -457,6 +458,11 @@ def main(argv=None):
     t.add_argument("--burners", type=int, default=2, help="busy processes beside the loaded measurements")
     t.add_argument("--out", default=None)
     t.set_defaults(fn=lambda a: _neural().bench_threads(a))
+    sp = sub.add_parser("step-parts", help="a learning step of DDPG and DQN: the update and the work around it")
+    sp.add_argument("--threads", type=int, default=1)
+    sp.add_argument("--warmup", type=int, default=1_100)
+    sp.add_argument("--out", default=None)
+    sp.set_defaults(fn=lambda a: _neural().bench_step_parts(a))
     args = p.parse_args(argv)
     if args.what == "threads" and args.seed_counts is None:
         args.seed_counts = dict(dgpq=[1, 64], dqn=[1, 10], ddpg=[1, 4])

@@ -202,3 +202,45 @@ def bench_threads(args) -> None:
     out = Path(args.out or "bench-threads.json")
     out.write_text(json.dumps(dict(meta=dict(burners=args.burners, cpus=os.cpu_count()), results=results), indent=1))
     print(f"wrote {out}")
+
+
+def bench_step_parts(args) -> None:
+    """Where a learning step's time goes, per batched step (µs): one gradient step, and
+    the work around it (replay sample and write, the stored transition, acting, the env),
+    after ``--warmup`` steps of learning. In this process, at ``--threads``."""
+    import time
+
+    import torch
+
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    from trl_dgpq.collectors.online import OnlineCollector
+    torch.set_num_threads(args.threads)
+    results = []
+    for agent, env_name, S in (("ddpg", "liquidation", 4), ("dqn", "gym:CartPole-v1", 10)):
+        extra = ZOO_CARTPOLE if agent == "dqn" else {}
+        env, ag = build(resolve_config(env=env_name, agent=agent, seeds=list(range(S)), episodes=10 ** 9, **extra))
+        col = OnlineCollector(env, ag, 10 ** 9, max_total_steps=args.warmup, progress=False)
+        col.run()
+
+        def timed(fn, n=200):
+            fn()
+            t0 = time.perf_counter()
+            for _ in range(n):
+                fn()
+            return (time.perf_counter() - t0) / n * 1e6
+        batch = ag.replay.sample(ag.batch_size)
+        td = col.td.clone()
+        td["action"] = ag.act(col.td)
+        out, _ = env.step_and_maybe_reset(td.clone())
+        stored = ag.stored(out)
+        row = dict(agent=agent, seeds=S, update_us=timed(lambda: ag.update(batch)),
+                   replay_sample_us=timed(lambda: ag.replay.sample(ag.batch_size)),
+                   replay_write_us=timed(lambda: ag.replay.add(stored)), stored_us=timed(lambda: ag.stored(out)),
+                   act_us=timed(lambda: ag.act(col.td)), env_step_us=timed(lambda: env.step_and_maybe_reset(td.clone())))
+        row["around_update_us"] = row["replay_sample_us"] + row["replay_write_us"] + row["stored_us"] + row["act_us"]
+        results.append(row)
+        print(", ".join(f"{k} {v:.0f}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()), flush=True)
+    out = Path(args.out or "bench-step-parts.json")
+    out.write_text(json.dumps(dict(meta=dict(threads=args.threads, load_average=os.getloadavg()), results=results),
+                              indent=1))
+    print(f"wrote {out}")
