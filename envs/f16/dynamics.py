@@ -1,0 +1,47 @@
+"""The F-16's linearised longitudinal dynamics (SPEC 3.4; Stevens & Lewis), exactly
+discretised.
+
+The standard published linearisation at h = 0 ft, V_T = 502 ft/s, x_cg = 0.35 c̄:
+state (V_T ft/s, α rad, θ rad, q rad/s), elevator in degrees; open-loop eigenvalues
+−1.912, −0.151 ± 0.115i and +0.098 (relaxed static stability: one unstable mode).
+Altitude is appended as the first state, ḣ = V_T0 (θ − α), so the model is 5-D:
+(h, V_T, α, θ, q), all deviations from trim. Discretised with a zero-order hold on
+the elevator: exp([[A, B], [0, 0]] dt) gives (A_d, B_d) exactly.
+"""
+from __future__ import annotations
+
+import torch
+
+V_T0 = 502.0  # trim airspeed, ft/s
+
+A = torch.tensor([[-1.9311e-02, 8.8157e+00, -3.2170e+01, -5.7499e-01],
+                  [-2.5389e-04, -1.0189e+00, 0.0, 9.0506e-01],
+                  [0.0, 0.0, 0.0, 1.0],
+                  [2.9465e-12, 8.2225e-01, 0.0, -1.0774e+00]], dtype=torch.float64)
+B = torch.tensor([1.7370e-01, -2.1499e-03, 0.0, -1.7555e-01], dtype=torch.float64)
+
+STATE = ("h", "v_t", "alpha", "theta", "q")  # the 5-D model's order
+
+
+def continuous() -> tuple:
+    """(A, B) of the 5-D model (h, V_T, α, θ, q) with ḣ = V_T0 (θ − α)."""
+    a = torch.zeros(5, 5, dtype=torch.float64)
+    a[1:, 1:] = A
+    a[0, 2], a[0, 3] = -V_T0, V_T0
+    b = torch.zeros(5, dtype=torch.float64)
+    b[1:] = B
+    return a, b
+
+
+def discretise(dt: float) -> tuple:
+    """(A_d, B_d): x_{k+1} = A_d x_k + B_d u_k for an elevator u_k (degrees) held over dt."""
+    a, b = continuous()
+    m = torch.zeros(6, 6, dtype=torch.float64)
+    m[:5, :5], m[:5, 5] = a, b
+    e = torch.linalg.matrix_exp(m * dt)
+    return e[:5, :5].clone(), e[:5, 5].clone()
+
+
+def climb_rate(state: torch.Tensor) -> torch.Tensor:
+    """ḣ (ft/s) of states (..., 5)."""
+    return V_T0 * (state[..., 3] - state[..., 2])

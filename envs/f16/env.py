@@ -1,0 +1,109 @@
+"""Altitude hold of an F-16 with relaxed static stability (GWH14's second experiment;
+SPEC 3.4), batched over seeds.
+
+The model is ``dynamics.py``'s exact discretisation at ``dt`` (0.05 s, as GWH14). State,
+deviations from trim: altitude error h − h_d (ft), airspeed V_T (ft/s), angle of attack
+α (rad), pitch angle θ (rad), pitch rate q (rad/s). Action: elevator −1, 0, +1 (names
+"down", "hold", "up"), each a deflection of ``elevator_deg`` degrees held over the step.
+After each step, Gaussian noise of s.d. ``noise_v`` (ft/s) and ``noise_alpha`` (rad) is
+added to V_T and α, from the seed's own stream (GWH14: noise on airspeed and angle of
+attack). Reward (GWH14): r = −|h − h_d| / 100 − |ḣ| / 100 − |elevator| after the step,
+ḣ = V_T0 (θ − α).
+
+What GWH14 do not state, chosen here (and why):
+- an episode starts at h − h_d = ``h0`` (100 ft) with α = θ = ``pitch0`` (0.01 rad) and
+  lasts ``max_steps`` = 400 steps (20 s). Without an attitude perturbation or noise the
+  trim state is an equilibrium, and doing nothing would cost only the altitude error;
+  with them, doing nothing lets the unstable mode (time constant ~10 s) grow;
+- the envelope: the episode terminates when |h − h_d| > ``h_max`` or |α|, |θ| >
+  ``attitude_max`` or |q| > ``rate_max``. Leaving it costs what the remaining steps would
+  at the envelope's edge (|h − h_d| = h_max, |ḣ| = 0, no elevator): ending early is
+  never cheaper than flying on;
+- the observation is the state divided by the envelope's half-widths (V_T by
+  ``v_max``), so every component is in [−1, 1] while the episode runs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+
+from trl_dgpq.config import setting
+
+from ..base import SeedBatchedEnv
+from .dynamics import climb_rate, discretise
+
+
+@dataclass
+class F16Config:
+    """Altitude hold of an F-16 (SPEC 3.4)."""
+    dt: float = setting(0.05, "time step, s (GWH14)", within="(0, 1]")
+    elevator_deg: float = setting(1.0, "elevator deflection of actions -1 / +1, degrees", within="(0, 25]")
+    h0: float = setting(100.0, "altitude error h - h_d at the start, ft", within="[-1000, 1000]")
+    pitch0: float = setting(0.01, "alpha and theta at the start, rad", within="[-0.3, 0.3]")
+    noise_v: float = setting(0.5, "s.d. of the airspeed noise per step, ft/s", within="[0, inf)")
+    noise_alpha: float = setting(5e-4, "s.d. of the angle-of-attack noise per step, rad", within="[0, inf)")
+    h_max: float = setting(1000.0, "envelope: largest |h - h_d|, ft", within="(0, inf)")
+    v_max: float = setting(100.0, "observation scale of the airspeed deviation, ft/s", within="(0, inf)")
+    attitude_max: float = setting(0.5, "envelope: largest |alpha| and |theta|, rad", within="(0, 1.5]")
+    rate_max: float = setting(1.0, "envelope: largest |q|, rad/s", within="(0, inf)")
+    max_steps: int = setting(400, "steps per episode (truncation)", within="[1, inf)")
+
+    def cross_check(self) -> None:
+        if abs(self.h0) >= self.h_max or abs(self.pitch0) >= self.attitude_max:
+            raise ValueError(f"the start (h0 {self.h0}, pitch0 {self.pitch0}) must be inside the envelope "
+                             f"(h_max {self.h_max}, attitude_max {self.attitude_max})")
+
+
+class F16Env(SeedBatchedEnv):
+    """TorchRL env, ``batch_size=[len(seeds)]``; observations float64 ``(S, 5)`` in [−1, 1]."""
+
+    Config = F16Config
+    action_names = ("down", "hold", "up")
+    _state_names = ("state",)
+
+    def __init__(self, seeds=(0,), cfg: F16Config | None = None, device="cpu", **overrides):
+        super().__init__(seeds, cfg, device, **overrides)
+        ad, bd = discretise(self.cfg.dt)
+        self.ad, self.bd = ad.to(self.device), bd.to(self.device)
+        self.state = torch.zeros(self.num_seeds, 5, dtype=torch.float64, device=self.device)
+        c = self.cfg
+        self.scale = torch.tensor([c.h_max, c.v_max, c.attitude_max, c.attitude_max, c.rate_max],
+                                  dtype=torch.float64, device=self.device)
+
+    @classmethod
+    def _specs(cls, cfg, S, device):
+        f64 = dict(dtype=torch.float64, device=device)
+        observation = Composite(observation=Bounded(-1.0, 1.0, shape=(S, 5), **f64), shape=(S,), device=device)
+        return observation, Categorical(3, shape=(S,), device=device), Unbounded(shape=(S, 1), **f64)
+
+    def _observe(self):
+        return self._td(observation=self.state / self.scale)
+
+    def _initial(self, mask):
+        c = self.cfg
+        start = torch.tensor([c.h0, 0.0, c.pitch0, c.pitch0, 0.0], dtype=torch.float64, device=self.device)
+        self.state[mask] = start
+        return self._observe()
+
+    def elevator(self, action: torch.Tensor) -> torch.Tensor:
+        """Actions 0, 1, 2 as elevator -1, 0, +1."""
+        return action.to(torch.float64) - 1.0
+
+    def _transition(self, action):
+        c = self.cfg
+        e = self.elevator(action)
+        x = self.state @ self.ad.T + (e * c.elevator_deg)[:, None] * self.bd
+        noise = self.rng.normal(2)                                       # the seed's own stream
+        x[:, 1] += c.noise_v * noise[:, 0]
+        x[:, 2] += c.noise_alpha * noise[:, 1]
+        self.state.copy_(x)
+        reward = -x[:, 0].abs() / 100 - climb_rate(x).abs() / 100 - e.abs()
+        outside = (x.abs() > self.scale)[:, [0, 2, 3, 4]].any(-1)       # airspeed has no envelope
+        left = (self.max_steps - (self.t + 1)).to(torch.float64)
+        reward = torch.where(outside, reward - left * c.h_max / 100, reward)
+        return self._observe(), reward, outside
+
+
+Env = F16Env
