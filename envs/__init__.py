@@ -18,6 +18,7 @@ DOMAINS = {
     "push": "trl_dgpq.envs.push",
     "gym": "trl_dgpq.envs.gym",
     "corridor": "trl_dgpq.envs.corridor",
+    "f16": "trl_dgpq.envs.f16",
 }
 
 
