@@ -44,21 +44,31 @@ def quantised(command: torch.Tensor, elevator_deg: float) -> torch.Tensor:
     return (torch.clamp(torch.round(command / elevator_deg), -1, 1) + 1).long()
 
 
+class ElevatorLaw(ScriptedAgent):
+    """A control law: a command in degrees from the state, quantised to the elevator's settings."""
+
+    def __init__(self, cfg, elevator_deg: float, gain: torch.Tensor | None = None):
+        self.cfg, self.elevator_deg, self.gain = cfg, elevator_deg, gain
+
+    @classmethod
+    def resolve_config(cls, cfg, info):
+        return cfg
+
+    def command(self, x: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def act(self, td) -> torch.Tensor:
+        return quantised(self.command(td.get("state")), self.elevator_deg)
+
+
 @dataclass
 class LQRConfig:
     """The quantised discrete LQR."""
     r: float = setting(0.3, "cost of the elevator, per degree squared", within="(0, inf)")
 
 
-class LQRPolicy(ScriptedAgent):
+class LQRPolicy(ElevatorLaw):
     Config = LQRConfig
-
-    def __init__(self, gain: torch.Tensor, elevator_deg: float):
-        self.gain, self.elevator_deg = gain, elevator_deg
-
-    @classmethod
-    def resolve_config(cls, cfg, info):
-        return cfg
 
     @classmethod
     def make(cls, cfg, info, seeds):
@@ -66,10 +76,10 @@ class LQRPolicy(ScriptedAgent):
         a, b = discretise(env.dt)
         rate = torch.tensor([0.0, 0.0, -V_T0, V_T0, 0.0], dtype=torch.float64) / 100  # ḣ / 100 = rate · x
         q = torch.diag(torch.tensor([1e-4, 0, 0, 0, 0], dtype=torch.float64)) + torch.outer(rate, rate)
-        return cls(lqr_gain(a, b, q, cfg.r), env.elevator_deg)
+        return cls(cfg, env.elevator_deg, lqr_gain(a, b, q, cfg.r))
 
-    def act(self, td) -> torch.Tensor:
-        return quantised(-(td.get("state") @ self.gain), self.elevator_deg)
+    def command(self, x):
+        return -(x @ self.gain)
 
 
 @dataclass
@@ -81,22 +91,14 @@ class PDConfig:
     k_q: float = setting(5.0, "degrees per rad/s of pitch rate", within="[0, inf)")
 
 
-class PDPolicy(ScriptedAgent):
+class PDPolicy(ElevatorLaw):
     Config = PDConfig
-
-    def __init__(self, cfg: PDConfig, elevator_deg: float):
-        self.cfg, self.elevator_deg = cfg, elevator_deg
-
-    @classmethod
-    def resolve_config(cls, cfg, info):
-        return cfg
 
     @classmethod
     def make(cls, cfg, info, seeds):
         return cls(cfg, info.config.elevator_deg)
 
-    def act(self, td) -> torch.Tensor:
-        x, c = td.get("state"), self.cfg
+    def command(self, x):
+        c = self.cfg
         # positive elevator pitches the nose down: above h_d or climbing -> positive
-        command = c.k_h * x[:, 0] + c.k_hdot * climb_rate(x) + c.k_theta * x[:, 3] + c.k_q * x[:, 4]
-        return quantised(command, self.elevator_deg)
+        return c.k_h * x[:, 0] + c.k_hdot * climb_rate(x) + c.k_theta * x[:, 3] + c.k_q * x[:, 4]
