@@ -81,7 +81,7 @@ class RunConfig:
     checkpoint_every: int = setting(10, "checkpoint every K episodes per seed (0: only on interrupt and at the end)",
                                     within="[0, inf)")
     threads: int = setting(1, "torch intra-op threads (README \"Threads\": 1 was fastest for every agent, seed "
-                              "count and load measured but one, and 2 up to 20x slower on a loaded machine)",
+                              "count and load measured but one; 2 were 2-50x slower on a loaded machine)",
                            within="[1, inf)")
 
 
