@@ -54,7 +54,8 @@ out = []
 for seed in range(spec["seeds"]):
     env = gym.make("CartPole-v1")
     model = DQN("MlpPolicy", env, learning_rate=z["lr"], batch_size=z["batch_size"], buffer_size=z["buffer_size"],
-                learning_starts=z["learning_starts"], gamma=z["gamma"], target_update_interval=z["target_update_interval"],
+                learning_starts=z["learning_starts"], gamma=z["gamma"],
+                target_update_interval=z["target_update_interval"],
                 train_freq=z["train_freq"], gradient_steps=z["gradient_steps"], exploration_fraction=0.16,
                 exploration_final_eps=z["eps_end"], policy_kwargs=dict(net_arch=list(z["hidden"])), seed=seed,
                 verbose=0, device="cpu")
@@ -236,7 +237,8 @@ def bench_step_parts(args) -> None:
         row = dict(agent=agent, seeds=S, update_us=timed(lambda: ag.update(batch)),
                    replay_sample_us=timed(lambda: ag.replay.sample(ag.batch_size)),
                    replay_write_us=timed(lambda: ag.replay.add(stored)), stored_us=timed(lambda: ag.stored(out)),
-                   act_us=timed(lambda: ag.act(col.td)), env_step_us=timed(lambda: env.step_and_maybe_reset(td.clone())))
+                   act_us=timed(lambda: ag.act(col.td)),
+                   env_step_us=timed(lambda: env.step_and_maybe_reset(td.clone())))
         row["around_update_us"] = row["replay_sample_us"] + row["replay_write_us"] + row["stored_us"] + row["act_us"]
         results.append(row)
         print(", ".join(f"{k} {v:.0f}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()), flush=True)

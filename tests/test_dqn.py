@@ -96,7 +96,8 @@ def test_td_target_by_hand_and_as_torchrls_dqn_loss():
     b = batch[1]
     with torch.no_grad():
         q = online(b["observation"]).gather(-1, b["action"][:, None])[:, 0]
-        y = b["next", "reward"][:, 0] + 0.7 * (~b["next", "terminated"][:, 0]) * target(b["next", "observation"]).max(-1).values
+        q_next = target(b["next", "observation"]).max(-1).values
+        y = b["next", "reward"][:, 0] + 0.7 * (~b["next", "terminated"][:, 0]) * q_next
         expect = torch.nn.functional.smooth_l1_loss(q, y, reduction="none")
     torch.testing.assert_close(loss[1], expect, rtol=1e-5, atol=1e-7)
 

@@ -111,7 +111,7 @@ def course_init(net: nn.Module) -> nn.Module:
 
 
 class DDPG(SeedBatchedLearner):
-    """DDPG for S seeds: stacked actor and critic, one loss, two optimisers."""
+    """DDPG for S seeds: stacked actor and critic with their targets, two loss terms, two optimisers."""
 
     Config = DDPGConfig
 
@@ -146,7 +146,8 @@ class DDPG(SeedBatchedLearner):
             self.noise[self.new_episode] = 0.0
         draw = (self.noise_rng.uniform(self.noise.shape[1]) if cfg.ou_noise == "uniform"
                 else self.noise_rng.normal(self.noise.shape[1])).to(torch.float32)
-        self.noise = self.noise + cfg.ou_theta * (0.0 - self.noise) * cfg.ou_dt + cfg.ou_sigma * math.sqrt(cfg.ou_dt) * draw
+        self.noise = (self.noise + cfg.ou_theta * (0.0 - self.noise) * cfg.ou_dt
+                      + cfg.ou_sigma * math.sqrt(cfg.ou_dt) * draw)
         return self.noise
 
     def act(self, td) -> torch.Tensor:
