@@ -1,9 +1,217 @@
-"""What the analysis says about the F-16: the episode's reward. GWH14's Figure 3 goes from
-about −525 to about −47 (L_Q = 5, episodes 100–200) and −113 (L_Q = 10, 900–1,000); the
-references here are the quantised LQR (−136 on seeds 100–107) and PD (−139). A stable
-flight: an episode's reward within 10% of PD's, −153 or better."""
-from trl_dgpq.analysis import Threshold
+"""What the analysis says about the F-16: the episode's reward, against GWH14's Figure 3.
+
+GWH14's DGPQ goes from about −525 to about −47 by episodes 100–200 (L_Q = 5) and from
+about −514 to about −113 by episodes 900–1,000 (L_Q = 10). The references here, on seeds
+100–107 and the default settings, are the PD law (−37), the quantised LQR (−41), doing
+nothing (−135) and a random elevator (−324). A stable flight: a mean episode reward
+over 10 episodes within 10 % of PD's, −41 or better.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from trl_dgpq.analysis import Threshold, ms_per_seed_step, rolling
 
 MEASURE = ("return", "episode reward")
-THRESHOLD = Threshold("return", ">=", -153, 10, "mean episode reward >= -153 (PD's -139 minus 10%) over 10 "
-                                                  "episodes")
+THRESHOLD = Threshold("return", ">=", -41, 10, "mean episode reward >= -41 (PD's -37 minus 10%) over 10 episodes")
+
+# GWH14's Figure 3 as read from the paper: (episode, reward) marks per Lipschitz constant.
+PAPER = {5.0: [(1, -525), (150, -47)], 10.0: [(1, -514), (950, -113)]}
+
+
+def episodes_to_stable(df: pd.DataFrame) -> pd.Series:
+    """Per seed: the first episode at which the mean reward of its last 10 met THRESHOLD
+    (NaN: never)."""
+    met = THRESHOLD.met(rolling(df, THRESHOLD.column, THRESHOLD.window, full=True))
+    first = df[met].groupby("seed")["episode"].first()
+    return first.reindex(sorted(df["seed"].unique()))
+
+
+def window_reward(df: pd.DataFrame, first: int, last: int) -> float:
+    """Mean episode reward over episodes first..last of every seed (NaN if none ran)."""
+    return float(df.loc[df.episode.between(first, last), "return"].mean())
+
+
+# ------------------------------------------------------------ one flight, for the trace figure
+def fly(env, policy) -> dict:
+    """Seed row 0's next episode under ``policy`` (a callable td -> actions), learning off:
+    {"t": s, "h": ft, "elevator": -1/0/+1, "reward": the episode's}."""
+    td = env.reset()
+    t, h, e, total = [0.0], [float(td["state"][0, 0])], [], 0.0
+    while True:
+        td["action"] = policy(td)
+        e.append(int(td["action"][0]) - 1)
+        td = env.step(td)
+        nxt = td["next"]
+        t.append(t[-1] + env.cfg.dt)
+        h.append(float(nxt["state"][0, 0]))
+        total += float(nxt["reward"][0])
+        if bool(nxt["done"][0]):
+            return dict(t=np.array(t), h=np.array(h), elevator=np.array(e), reward=total)
+        td = nxt.exclude("reward", "done", "terminated", "truncated")
+
+
+def flights(folder: Path) -> dict:
+    """{name: flight} for the learner whose checkpoint is in ``folder`` (a run, or a sweep
+    experiment's first job) and for PD and LQR, on the same next episode of its first seed
+    (the env restored from the checkpoint: the noise of an episode it never trained on)."""
+    import torch
+
+    from trl_dgpq.collectors.experiment import build
+    from trl_dgpq.agents import agent_class
+    jobs = [folder] + sorted((folder / "jobs").glob("*"))
+    job = next((j for j in jobs if (j / "checkpoint.pt").is_file()), None)
+    if job is None:
+        raise ValueError(f"{folder} holds no checkpoint.pt")
+    config = json.loads((job / "config.json").read_text())
+    checkpoint = torch.load(job / "checkpoint.pt", weights_only=True)
+    env, agent = build(config)
+    agent.load_state_dict(checkpoint["agent"])
+    out = {}
+    for name in (config["run"]["agent"], "pd", "lqr"):
+        env.load_state_dict(checkpoint["env"])
+        if name in ("pd", "lqr"):
+            cls = agent_class(name, config["run"]["env"])
+            agent = cls.make(cls.Config(), env.info, list(config["run"]["seeds"]))
+        out[name] = fly(env, agent.act)
+    return out
+
+
+def trace_figure(folder: Path, out: Path, title: str = "") -> Path:
+    """f16_trace.png: altitude error and elevator over one episode, the learner against PD
+    and LQR (``flights``)."""
+    import matplotlib.pyplot as plt
+
+    from trl_dgpq.analysis.figures import save
+    fig, (ax, bx) = plt.subplots(2, 1, figsize=(6.4, 5.2), sharex=True)
+    for i, (name, f) in enumerate(flights(folder).items()):
+        ax.plot(f["t"], f["h"], lw=1.2, label=f"{name}: episode reward {f['reward']:.0f}")
+        bx.step(f["t"][:-1], f["elevator"] + 0.08 * (i - 1), where="post", lw=1.0, label=name)
+    ax.axhline(0, color="k", lw=0.6)
+    ax.set_ylabel("altitude error h - h_d (ft)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    bx.set_yticks([-1, 0, 1], ["-1 (nose up)", "0", "+1 (nose down)"])
+    bx.set_ylabel("elevator (lines offset to show overlaps)")
+    bx.set_xlabel("time (s)")
+    bx.grid(alpha=0.3)
+    ax.set_title(f"one episode after training, same noise for all ({folder.name})", fontsize=9)
+    return save(fig, out / "f16_trace.png", title)
+
+
+# ------------------------------------------------------------ figures (scripts/plot.py)
+SCRIPTED = ("pd", "lqr", "constant", "random")  # no learning: drawn as their mean
+
+
+def blocks(df: pd.DataFrame, block: int) -> pd.DataFrame:
+    """Per block of ``block`` episodes: the median and quartiles across seeds of each
+    seed's mean reward in it; indexed by the block's middle episode."""
+    b = (df["episode"] - 1) // block
+    per_seed = df.groupby([b, df["seed"]])["return"].mean()
+    g = per_seed.groupby(level=0)
+    out = pd.DataFrame({"median": g.median(), "q25": g.quantile(0.25), "q75": g.quantile(0.75)})
+    out.index = out.index * block + (block + 1) / 2  # the block's middle episode
+    return out
+
+
+def reward_figure(runs, labels, out: Path, block: int = 10, title: str = "") -> Path:
+    """f16_reward.png: the learners' episode reward (median and IQR across seeds of each
+    block's mean), the scripted agents' mean as lines, and GWH14's Figure 3 as marks."""
+    import matplotlib.pyplot as plt
+
+    from trl_dgpq.analysis.figures import save
+    fig, ax = plt.subplots(figsize=(7.0, 4.4))
+    scripted = []
+    for run, label in zip(runs, labels):
+        df = run.df
+        if run.agent in SCRIPTED:
+            styles = [(":", "k"), ("--", "0.4"), ("-.", "0.6"), (":", "0.7")]
+            ls, color = styles[len(scripted) % len(styles)]
+            scripted.append(ax.axhline(df["return"].mean(), ls=ls, color=color, lw=1.0,
+                                       label=f"{label} (mean {df['return'].mean():.0f})"))
+            continue
+        b = blocks(df, block)
+        line, = ax.plot(b.index, b["median"], lw=1.2, label=f"{label} ({df.seed.nunique()} seeds)")
+        ax.fill_between(b.index, b["q25"], b["q75"], color=line.get_color(), alpha=0.25, lw=0)
+        marks = PAPER.get(run.config["agent"].get("lipschitz")) if run.agent == "dgpq" else None
+        if marks:
+            (e0, r0), (e1, r1) = marks
+            ax.plot([e0], [r0], "x", color=line.get_color(), ms=8)
+            ax.plot([e1 - 50, e1 + 50], [r1, r1], lw=3, color=line.get_color(), alpha=0.6)
+    ax.plot([], [], "kx", label="GWH14 Fig. 3: start (x) and episodes 100-200 / 900-1000 (bar)")
+    ax.set_xscale("log")
+    ax.set_xlabel(f"episode (log axis; blocks of {block})")
+    ax.set_ylabel("episode reward (median of seeds; band: IQR)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7, loc="lower right", ncol=2)
+    return save(fig, out / "f16_reward.png", title)
+
+
+def figures(runs, labels, out: Path, block: int = 10, last=None, title: str = "", **_) -> list:
+    """f16_reward.png, and f16_trace.png for the first learner with a checkpoint."""
+    written = [reward_figure(runs, labels, out, block=block, title=title)]
+    learner = next((r for r in runs if r.agent not in SCRIPTED and (any(r.path.glob("checkpoint.pt"))
+                                                                     or any(r.path.glob("jobs/*/checkpoint.pt")))),
+                   None)
+    if learner is not None:
+        written.append(trace_figure(learner.path, out, title))
+    return written
+
+
+# ------------------------------------------------------------ the reproduction (scripts/reproduce.py)
+SCALES = {"smoke": (1, 3), "quick": (4, 100), "full": (10, 1000), "report": (10, 1000)}
+SCRIPTED_SCALES = {k: (seeds, min(episodes, 100)) for k, (seeds, episodes) in SCALES.items()}
+REPRODUCE = [
+    ("f16-dgpq-lq5", dict(agent="dgpq", preset="default")),
+    ("f16-dgpq-lq10", dict(agent="dgpq", preset="lq10")),
+    ("f16-dgpq-gamma99", dict(agent="dgpq", preset="gamma99"),
+     {"smoke": (1, 2), "quick": (2, 50), "full": (4, 300), "report": (4, 300)}),  # Q̂ grows: ~1 ms per step
+    ("f16-dqn", dict(agent="dqn", preset="default")),
+    ("f16-pd", dict(agent="pd", preset="default"), SCRIPTED_SCALES),
+    ("f16-lqr", dict(agent="lqr", preset="default"), SCRIPTED_SCALES),
+    ("f16-nothing", dict(agent="constant", preset="default"), SCRIPTED_SCALES),
+    ("f16-random", dict(agent="random", preset="default"), SCRIPTED_SCALES),
+]
+
+
+def row(name: str, df: pd.DataFrame) -> tuple:
+    E = int(df.episode.max())
+    stable = episodes_to_stable(df)
+    late = (max(1, E - 99), E) if E < 1000 else (901, 1000)
+    cells = (f"{window_reward(df, 1, 10):.0f}", f"{window_reward(df, 100, 200):.0f}" if E >= 100 else "-",
+             f"{window_reward(df, *late):.0f} ({late[0]}-{late[1]})",
+             f"{stable.notna().sum()} of {len(stable)}" + (f", median {stable.median():.0f}" if stable.notna().any()
+                                                           else ""),
+             f"{ms_per_seed_step(df):.2f}")
+    return f"| {name.removeprefix('f16-')} | {df.seed.nunique()} x {E} | " + " | ".join(cells) + " |"
+
+
+def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
+    """REPORT.md's F-16 section; ``runs``: {name in REPRODUCE: Run}."""
+    (out / "f16").mkdir(exist_ok=True)
+    names = list(runs)
+    figures([runs[n] for n in names], [n.removeprefix("f16-") for n in names], out / "f16",
+            block=10, title=title)
+    rows = ["| agent | seeds x episodes | reward, episodes 1-10 | 100-200 | late | stable flight reached "
+            "(episode) | ms per seed-step |", "|---|---|---|---|---|---|---|"]
+    rows += [row(n, runs[n].df) for n in names]
+    sentences = []
+    for n, L, (e1, r1) in (("f16-dgpq-lq5", 5, PAPER[5.0][1]), ("f16-dgpq-lq10", 10, PAPER[10.0][1])):
+        if n not in runs:
+            continue
+        df = runs[n].df
+        lo, hi = (100, 200) if e1 < 500 else (900, 1000)
+        ours = window_reward(df, lo, hi)
+        stable = episodes_to_stable(df)
+        verdict = ("agrees" if ours >= r1 * 1.5 else "differs") if not np.isnan(ours) else "not measured at this scale"
+        sentences.append(f"- GWH14 (L_Q = {L}): about {PAPER[float(L)][0][1]} at first and {r1} by episodes "
+                         f"{lo}-{hi}. Ours: {window_reward(df, 1, 10):.0f} in episodes 1-10 and "
+                         f"{'-' if np.isnan(ours) else f'{ours:.0f}'} in {lo}-{hi}; {stable.notna().sum()} of "
+                         f"{len(stable)} seeds reached a stable flight ({verdict}).")
+    return (f"## Aircraft altitude hold (GWH14's second experiment) -- Figure 3\n\n{label}\n\n"
+            + "\n".join(rows) + "\n\n" + "\n".join(sentences)
+            + "\n\n![reward](f16/f16_reward.png) ![trace](f16/f16_trace.png)\n")

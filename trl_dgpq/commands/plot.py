@@ -18,6 +18,10 @@ Runs that all belong to a domain with figures of its own get those instead
     push                    push.png (the block's final distance to the goal and the success rate
                             per episode, Fig. 5), push.md (success, steps, fall-offs over the last
                             --last episodes)
+    f16                     f16_reward.png (episode reward per block of --block episodes, median and
+                            IQR across seeds, against GWH14's Fig. 3 and the scripted controllers),
+                            f16_trace.png (one episode's altitude and elevator: the first learner
+                            with a checkpoint against PD and LQR)
 """
 from __future__ import annotations
 
@@ -35,7 +39,8 @@ def main(argv=None) -> int:
     p.add_argument("--labels", nargs="+", default=None)
     p.add_argument("--out", default=None, help="folder for the PNGs (default: the first run folder)")
     p.add_argument("--linear", action="store_true", help="linear y axis for steps")
-    p.add_argument("--block", type=int, default=100, help="liquidation: episodes per plotted mean")
+    p.add_argument("--block", type=int, default=None,
+                   help="episodes per plotted mean (liquidation: 100, f16: 10)")
     p.add_argument("--last", type=int, default=None,
                    help="episodes at the end that a domain's table uses (liquidation: 1000, push: 20)")
     args = p.parse_args(argv)
@@ -59,7 +64,7 @@ def main(argv=None) -> int:
     domains = {run.domain and run.domain.name for run in runs}  # None: a run without its config.json
     own = getattr(runs[0].domain.analysis(), "figures", None) if len(domains) == 1 and None not in domains else None
     if own is not None:
-        written = own(runs, labels, out, block=args.block, last=args.last)
+        written = own(runs, labels, out, last=args.last, **({} if args.block is None else dict(block=args.block)))
     else:
         from trl_dgpq.analysis.figures import episode_figures
         written = episode_figures(runs, labels, out, logy_steps=not args.linear)
