@@ -30,10 +30,11 @@ import sys
 from pathlib import Path
 
 from trl_dgpq.analysis import load_run
+from trl_dgpq.commands import prog
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="plot.py", description=__doc__,
+    p = argparse.ArgumentParser(prog=prog("plot"), description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("runs", nargs="*", help="run folders holding episodes.csv (default: newest under runs/)")
     p.add_argument("--labels", nargs="+", default=None)

@@ -15,10 +15,11 @@ import sys
 from pathlib import Path
 
 from trl_dgpq.analysis.report import report
+from trl_dgpq.commands import prog
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="report.py", description=__doc__,
+    p = argparse.ArgumentParser(prog=prog("report"), description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("runs", nargs="+", help="run folders or sweep experiment folders")
     p.add_argument("--labels", nargs="+", default=None, help="one per run (default: agent and preset)")
@@ -33,7 +34,7 @@ def main(argv=None) -> int:
             raise ValueError("--window and --budget must be positive")
         written, text = report(args.runs, args.labels, Path(args.out or args.runs[0]), args.budget, args.window)
     except ValueError as err:
-        print(f"report.py: error: {err}", file=sys.stderr)
+        print(f"{prog('report')}: error: {err}", file=sys.stderr)
         return 2
     print(text)
     for path in written:

@@ -28,6 +28,7 @@ from pathlib import Path
 from trl_dgpq.analysis import load_run
 from trl_dgpq.collectors import runner, sweep
 from trl_dgpq.collectors.experiment import resolve_config
+from trl_dgpq.commands import prog
 from trl_dgpq.envs import domains
 
 SCALES = ("smoke", "quick", "full", "report")  # smoke: for tests; report: the seed report's own lengths
@@ -79,7 +80,7 @@ def write_report(out: Path, scale: str, wall: float, only=None) -> Path:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="reproduce.py", description=__doc__,
+    p = argparse.ArgumentParser(prog=prog("reproduce"), description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scale", choices=SCALES, default="quick")
     p.add_argument("--out", default=None, help="folder (default: runs/reproduce-SCALE); an existing one continues")
@@ -110,7 +111,7 @@ def main(argv=None) -> int:
         path = write_report(out, args.scale, time.perf_counter() - t0, args.only)
         print(f"wrote {path} and its figures", flush=True)
         return 0
-    return sweep.run_script("reproduce.py", "the same command", body)
+    return sweep.run_script(prog("reproduce"), "the same command", body)
 
 
 if __name__ == "__main__":

@@ -21,10 +21,11 @@ import sys
 
 from trl_dgpq.collectors import sweep
 from trl_dgpq.collectors.experiment import quiet_torchrl
+from trl_dgpq.commands import prog
 
 
 def make_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="sweep.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(prog=prog("sweep"), description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("file", nargs="?", help="sweep file (TOML)")
     p.add_argument("--out", help="sweep folder")
     p.add_argument("--resume", metavar="OUT", help="continue the sweep in OUT: only unfinished jobs run")
@@ -65,7 +66,7 @@ def main(argv=None) -> int:
         report = sweep.execute(out, jobs, args.backend, args.workers, args.ray_address, args.cpus_per_job,
                                log=lambda line: print(line, flush=True))
         return sweep.exit_code(report, rerun)
-    return sweep.run_script("sweep.py", rerun, body)
+    return sweep.run_script(prog("sweep"), rerun, body)
 
 
 if __name__ == "__main__":

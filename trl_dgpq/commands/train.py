@@ -28,10 +28,11 @@ import sys
 from trl_dgpq.analysis import ms_per_seed_step
 from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import cli_owners, describe, quiet_torchrl, resolve_config
+from trl_dgpq.commands import prog
 from trl_dgpq.config import describe_default
 from trl_dgpq.envs import domain
 
-PROCESS_FLAGS = ("out", "resume", "overwrite", "config", "set", "no_progress")
+PROCESS_FLAGS = ("out", "resume", "overwrite", "config", "set", "no_progress", "print_config", "yes")
 
 
 class Parser(argparse.ArgumentParser):
@@ -39,8 +40,21 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
+MANY_SEEDS = 256  # more in one run asks first: "--seeds 3201" is more likely a typo of "--seeds 3-201"
+
+
+def confirm_many(n: int, yes: bool) -> None:
+    """Go on with ``n`` seeds: at once if few or ``yes``; else ask on a terminal, refuse otherwise."""
+    if n <= MANY_SEEDS or yes:
+        return
+    question = f"{n} seeds in one run (a range is A-B, e.g. --seeds 3-201)"
+    if sys.stdin.isatty() and input(f"{question}: go on? [y/N] ").strip().lower() in ("y", "yes"):
+        return
+    raise ValueError(f"{question}: not confirmed; add --yes to run that many")
+
+
 def make_parser() -> argparse.ArgumentParser:
-    p = Parser(prog="train.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = Parser(prog=prog("train"), description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default=None, help="run folder (default runs/<env>-<agent>-<preset>-<time>); "
                                                "refused if it holds a run, unless --overwrite")
     p.add_argument("--overwrite", action="store_true", help="replace the run in --out")
@@ -50,6 +64,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
                    help="any setting, e.g. --set gp.noise_var=0.2 (repeatable)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--print-config", action="store_true",
+                   help="print the resolved config (presets and flags applied) as JSON and exit; runs nothing")
+    p.add_argument("--yes", action="store_true", help=f"run more than {MANY_SEEDS} seeds without asking")
     g = p.add_argument_group("settings (generated from the config dataclasses; default in brackets)")
     for key, owners in cli_owners().items():
         flag = "--" + key.replace("_", "-")
@@ -124,6 +141,10 @@ def _main(argv=None) -> int:
                 except (OSError, ValueError) as err:
                     parser.error(f"cannot read --config {args.config}: {err}")
             config = resolve_config(settings, base=base)
+            if args.print_config:
+                print(json.dumps(config, indent=2))
+                return 0
+            confirm_many(len(config["run"]["seeds"]), args.yes)
             runner.check_memory(config)
             run = config["run"]
             folder = runner.RunFolder.create(args.out, describe(config).replace("/", "-"), args.overwrite)
