@@ -24,7 +24,7 @@ from torchrl.data import Bounded, Categorical, Composite
 from torchrl.envs import EnvBase
 
 from trl_dgpq.config import check_config
-from trl_dgpq.rng import ENV_STREAM, SeedStreams
+from trl_dgpq.rng import ENV_STREAM, SeedStreams, stream_id
 
 
 @dataclass(frozen=True)
@@ -207,10 +207,24 @@ class SeedBatchedEnv(EnvBase):
             self.seeds = [int(seed) + i for i in range(self.num_seeds)]
             self._key_streams()
 
+    evaluating = False  # for_evaluation() sets it: every stream keyed apart from training's
+
+    def for_evaluation(self) -> "SeedBatchedEnv":
+        """Re-key every random stream so that seed i's episodes are ones its training never
+        met (the same for seed i in any batch); before the first reset. Returns self."""
+        self.evaluating = True
+        self._key_streams()
+        return self
+
+    def stream_key(self, stream: int) -> int:
+        """The stream id this env draws ``stream`` from: itself in training, a named id apart
+        from every training stream in evaluation."""
+        return stream_id(f"evaluation/{stream}") if self.evaluating else stream
+
     def _key_streams(self) -> None:
-        self.rng = SeedStreams(self.seeds, ENV_STREAM, device=self.device)
+        self.rng = SeedStreams(self.seeds, self.stream_key(ENV_STREAM), device=self.device)
         for name, stream in self._streams:
-            setattr(self, name, SeedStreams(self.seeds, stream, device=self.device))
+            setattr(self, name, SeedStreams(self.seeds, self.stream_key(stream), device=self.device))
 
     def _td(self, **tensors) -> TensorDict:
         return TensorDict(tensors, batch_size=self.batch_size, device=self.device)

@@ -186,3 +186,13 @@ def test_reproduce_writes_every_figure_and_the_report(tmp_path):
         assert (out / fig).is_file(), fig
     assert reproduce.main(["--scale", "smoke", "--out", str(out)]) == 0          # again: nothing to rerun
     assert reproduce.main(["--scale", "quick", "--out", str(out)]) == 2          # another sweep's folder
+
+
+def test_reproduce_only_plans_the_named_domains():
+    f16 = reproduce.experiments("smoke", ["f16"])
+    every = reproduce.experiments("smoke")
+    assert f16 and all(name.startswith("f16-") for name in f16)
+    assert set(f16) < set(every) and any(name.startswith("square-") for name in every)
+    assert f16["f16-dgpq-lq10"]["agent"]["lipschitz"] == 10.0 and f16["f16-nothing"]["agent"]["action"] == "hold"
+    with pytest.raises(SystemExit):  # an unknown domain: argparse's one line, exit 2
+        reproduce.main(["--only", "nowhere"])

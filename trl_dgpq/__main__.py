@@ -9,6 +9,7 @@ import sys
 COMMANDS = {
     "train": "train one experiment (many seeds, batched in one process)",
     "sweep": "many experiments on a pool of processes or a Ray cluster",
+    "evaluate": "a trained run's agents on new episodes, exploration off (eval.csv)",
     "plot": "figures of one or more run folders",
     "report": "learners compared by environment steps, from run folders",
     "reproduce": "every experiment of the reproduction, then REPORT.md",

@@ -216,6 +216,10 @@ class DGPQ:
     def act(self, td) -> torch.Tensor:
         return self.select_action(self.features(td.get("observation")))
 
+    def exploit(self, td) -> torch.Tensor:
+        """Evaluation: step 1 as in training (Q̂'s greedy action, ties by the tie stream)."""
+        return self.act(td)
+
     def observe(self, td, active: Optional[torch.Tensor] = None) -> dict:
         nxt = td.get("next")
         return self.learn(self.features(td.get("observation")), td.get("action"),

@@ -39,6 +39,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import GymEnv
 
 from trl_dgpq.config import check_config, setting
+from trl_dgpq.rng import ENV_STREAM, SeedStreams
 
 from ..base import SeedBatchedEnv
 
@@ -167,6 +168,13 @@ class GymSeedEnv(SeedBatchedEnv):
         return (observation, Categorical(n, shape=(S,), device=device),
                 Unbounded(shape=(S, 1), dtype=torch.float64, device=device))
 
+    def first_seed(self, seed: int) -> int:
+        """The seed of gymnasium's first reset: the seed itself in training; in evaluation a
+        32-bit number keyed by (seed, "evaluation"), so its episodes are new ones."""
+        if not self.evaluating:
+            return seed
+        return int(SeedStreams([seed], self.stream_key(ENV_STREAM)).uniform(1)[0, 0] * 2**32)
+
     def to_unit_box(self, raw: torch.Tensor) -> torch.Tensor:
         """Raw gymnasium observations (..., d) -> [0, 1]^d."""
         raw = raw.to(torch.float64)
@@ -176,7 +184,7 @@ class GymSeedEnv(SeedBatchedEnv):
     def _initial(self, mask):
         for i in mask.nonzero()[:, 0].tolist():
             # the first reset seeds this instance's np_random; later ones continue it
-            kwargs = {} if self.started[i] else {"seed": self.seeds[i]}
+            kwargs = {} if self.started[i] else {"seed": self.first_seed(self.seeds[i])}
             self.raw[i] = self.envs[i].reset(**kwargs).get("observation")
             self.started[i] = True
         return self._td(observation=self.to_unit_box(self.raw).to(self.device))

@@ -35,6 +35,10 @@ class Agent(Protocol):
     def act(self, td: TensorDictBase) -> torch.Tensor:
         """Actions for the observations in ``td``, one per seed."""
 
+    def exploit(self, td: TensorDictBase) -> torch.Tensor:
+        """(Optional; default ``act``.) Actions with exploration off, for evaluation: no
+        epsilon, no action noise. Must not change what the agent has learned."""
+
     def observe(self, td: TensorDictBase, active: Optional[torch.Tensor]) -> object:
         """Learn from the transition ``td`` (with its "next" entries); ``active`` (S,) bool
         masks out seeds that have finished their episodes."""

@@ -150,6 +150,11 @@ class DDPG(SeedBatchedLearner):
                       + cfg.ou_sigma * math.sqrt(cfg.ou_dt) * draw)
         return self.noise
 
+    def exploit(self, td) -> torch.Tensor:
+        """The actor's action, no noise (evaluation), float64 (S, act_dim)."""
+        with torch.no_grad():
+            return self.actor(td.get("observation").to(torch.float32)).clamp(self.low, self.high).to(torch.float64)
+
     def act(self, td) -> torch.Tensor:
         """Actor + OU noise, clipped to the action box, float64 (S, act_dim)."""
         with torch.no_grad():

@@ -85,6 +85,10 @@ class DQN(SeedBatchedLearner):
         with torch.no_grad():
             return self.qnet(obs.to(torch.float32)).argmax(-1)
 
+    def exploit(self, td) -> torch.Tensor:
+        """epsilon = 0 (evaluation)."""
+        return self.greedy(td.get("observation"))
+
     def act(self, td) -> torch.Tensor:
         u = self.explore_rng.uniform(2)                           # (S, 2): explore?, which action
         random = (u[:, 1] * self.n_actions).long()

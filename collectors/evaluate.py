@@ -1,0 +1,92 @@
+"""Evaluate a trained agent: its last checkpoint, learning and exploration off, on
+episodes its training never met.
+
+For each job of a run (the run folder itself, or each ``jobs/*`` of a sweep experiment)
+the agent is rebuilt from ``config.json`` and restored from ``checkpoint.pt`` (read
+with ``weights_only=True``; the file is only read). The env is a fresh one whose
+streams are keyed for evaluation (``SeedBatchedEnv.for_evaluation``): seed i's
+evaluation episodes are the same in any batch and share no random numbers with its
+training. The agent acts by ``exploit`` (DGPQ: Q̂'s greedy action; DQN: ε = 0; DDPG:
+no OU noise) and ``observe`` is never called. The rows, one per episode as in
+``episodes.csv``, go to ``eval.csv`` beside the run's ``episodes.csv``.
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+from pathlib import Path
+from typing import List
+
+import pandas as pd
+import torch
+
+from .experiment import build, describe
+from .online import OnlineCollector, frame
+from .runner import CHECKPOINT, RunError, atomic_write
+
+EVAL = "eval.csv"
+
+
+class Frozen:
+    """An agent that acts by its ``exploit`` and learns nothing."""
+
+    def __init__(self, agent):
+        self.agent = agent
+
+    def act(self, td) -> torch.Tensor:
+        return getattr(self.agent, "exploit", self.agent.act)(td)
+
+    def observe(self, td, active=None) -> None:
+        pass
+
+    def episode_stats(self) -> dict:
+        return self.agent.episode_stats()
+
+
+def jobs(folder: Path) -> List[Path]:
+    """The folders holding a config.json and a checkpoint: the run, or a sweep experiment's jobs."""
+    found = [j for j in [folder, *sorted((folder / "jobs").glob("*"))]
+             if (j / "config.json").is_file() and (j / CHECKPOINT).is_file()]
+    if not found:
+        raise RunError(f"{folder} holds no run with a checkpoint (config.json and {CHECKPOINT}): train it first")
+    return found
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def evaluate_job(job: Path, episodes: int, progress: bool = False) -> pd.DataFrame:
+    """``episodes`` evaluation episodes per seed of the run in ``job``; its checkpoint unchanged."""
+    config = json.loads((job / "config.json").read_text())
+    path = job / CHECKPOINT
+    before = sha256(path)
+    try:
+        state = torch.load(path, weights_only=True)
+    except Exception as err:
+        raise RunError(f"cannot read {path}: {err}") from None
+    env, agent = build(config)
+    agent.load_state_dict(state["agent"])
+    env.for_evaluation()
+    rows = OnlineCollector(env, Frozen(agent), episodes, progress=progress,
+                           desc=f"evaluate {describe(config)}").run()
+    if sha256(path) != before:  # cannot happen (read only); checked because the promise is made
+        raise RunError(f"{path} changed during evaluation")
+    return rows
+
+
+def evaluate(folder, episodes: int = 10, progress: bool = False) -> pd.DataFrame:
+    """Evaluate every job of the run in ``folder``; writes and returns ``folder/eval.csv``."""
+    folder = Path(folder)
+    if int(episodes) != episodes or episodes < 1:
+        raise ValueError(f"episodes must be a positive integer, got {episodes}")
+    df = pd.concat([evaluate_job(j, int(episodes), progress) for j in jobs(folder)], ignore_index=True)
+    df = df.sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
+    buf = io.StringIO()
+    df.to_csv(buf, index=False)
+    atomic_write(folder / EVAL, lambda f: f.write(buf.getvalue().encode()))
+    return df
+
+
+__all__ = ["EVAL", "Frozen", "evaluate", "evaluate_job", "frame", "jobs"]

@@ -1,0 +1,82 @@
+"""evaluate: a run's checkpoint, exploration and learning off, on episodes training never met."""
+import hashlib
+
+import pandas as pd
+import pytest
+import torch
+from tensordict import TensorDict
+
+from trl_dgpq.agents.ddpg import DDPG, DDPGConfig
+from trl_dgpq.agents.dqn import DQN, DQNConfig
+from trl_dgpq.collectors.evaluate import evaluate
+from trl_dgpq.collectors.runner import RunError
+from trl_dgpq.commands import evaluate as evaluate_command
+from trl_dgpq.commands import train
+from trl_dgpq.envs.f16.env import F16Env
+from trl_dgpq.envs.gym.env import gym_env
+
+
+def trained(tmp_path, *argv):
+    out = tmp_path / "run"
+    assert train.main([*map(str, argv), "--out", str(out), "--no-progress"]) == 0
+    return out
+
+
+def test_a_dgpq_run_is_evaluated_without_learning_and_its_checkpoint_is_unchanged(tmp_path):
+    out = trained(tmp_path, "--seeds", "0,3", "--episodes", 4)
+    digest = hashlib.sha256((out / "checkpoint.pt").read_bytes()).hexdigest()
+    df = evaluate(out, episodes=3)
+    assert list(df.seed) == [0, 0, 0, 3, 3, 3] and list(df.episode) == [1, 2, 3] * 2
+    pd.testing.assert_frame_equal(pd.read_csv(out / "eval.csv"), df, check_exact=False)
+    assert hashlib.sha256((out / "checkpoint.pt").read_bytes()).hexdigest() == digest
+    # nothing learned: every evaluation row has the Q̂ the training ended with
+    last = pd.read_csv(out / "episodes.csv").groupby("seed").last()
+    for col in ("qhat_size", "qhat_updates", "gp_adds"):
+        assert (df.groupby("seed")[col].agg(["min", "max"]).T == last[col]).all().all(), col
+
+
+def test_evaluation_episodes_are_new_and_a_seeds_own(tmp_path):
+    def first_states(env, steps=30):
+        td, out = env.reset(), []
+        for _ in range(steps):
+            td["action"] = torch.ones(env.num_seeds, dtype=torch.long)
+            td = env.step(td)["next"]
+            out.append(td["state"].clone())
+        return torch.stack(out, 1)
+    train_ = first_states(F16Env([3]))
+    alone = first_states(F16Env([3]).for_evaluation())
+    batch = first_states(F16Env([8, 3]).for_evaluation())
+    assert torch.equal(alone[0], batch[1]) and not torch.equal(alone[0], train_[0])
+    cart = [gym_env("CartPole-v1")([7]), gym_env("CartPole-v1")([2, 7]).for_evaluation()]
+    a, b = cart[0].reset()["observation"], cart[1].reset()["observation"]
+    again = gym_env("CartPole-v1")([7]).for_evaluation().reset()["observation"]
+    assert torch.equal(again[0], b[1]) and not torch.equal(a[0], b[1])
+
+
+def test_dqn_exploits_with_epsilon_zero_and_draws_no_exploration_number():
+    agent = DQN(DQNConfig(eps_init=1.0, eps_end=1.0, hidden=(8,)), [0, 1], 3, 4)  # epsilon 1: act is random
+    obs = torch.rand(2, 3)
+    td = TensorDict({"observation": obs}, [2])
+    before = agent.explore_rng.counter
+    expect = torch.stack([agent.qnet(obs.float())[i].argmax() for i in range(2)])
+    assert torch.equal(agent.exploit(td), expect)
+    assert agent.explore_rng.counter == before
+
+
+def test_ddpg_exploits_without_noise():
+    low, high = torch.zeros(2), torch.ones(2)
+    from torchrl.data import Bounded
+    agent = DDPG(DDPGConfig(ou_sigma=0.5), [0, 1], 3, Bounded(low, high, shape=(2,)))
+    td = TensorDict({"observation": torch.rand(2, 3)}, [2])
+    with torch.no_grad():
+        expect = agent.actor(td["observation"].float()).clamp(0, 1).double()
+    noise = agent.noise.clone()
+    assert torch.equal(agent.exploit(td), expect) and torch.equal(agent.noise, noise)
+    assert not torch.equal(agent.act(td), expect)  # training's action carries the OU noise
+
+
+def test_a_folder_without_a_checkpoint_is_one_line(tmp_path, capsys):
+    with pytest.raises(RunError, match="holds no run with a checkpoint"):
+        evaluate(tmp_path)
+    assert evaluate_command.main([str(tmp_path), "--no-progress"]) == 2
+    assert "error:" in capsys.readouterr().err

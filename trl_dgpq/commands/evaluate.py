@@ -1,0 +1,52 @@
+"""Evaluate trained agents: each run's last checkpoint, exploration and learning off.
+
+    python scripts/evaluate.py RUN [RUN ...] [--episodes 10]
+
+A RUN is a run folder (``train.py --out``) or an experiment folder of a sweep. Each seed
+plays ``--episodes`` new episodes (its env's random streams keyed for evaluation, so
+none is an episode it trained on) with its learned agent acting greedily: DGPQ by Q̂
+(ties by its tie stream), DQN with ε = 0, DDPG without OU noise; scripted and random
+agents act as in training. Writes RUN/eval.csv (one row per episode, the columns of
+episodes.csv) and prints the evaluation's mean of the domain's measure beside the last
+training episodes'. The checkpoint is only read: its bytes are unchanged.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from trl_dgpq.commands import prog
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog=prog("evaluate"), description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("runs", nargs="+", help="run folders or sweep experiment folders")
+    p.add_argument("--episodes", type=int, default=10, help="evaluation episodes per seed [10]")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    args = p.parse_args(argv)
+    from trl_dgpq.analysis import load_run
+    from trl_dgpq.collectors.evaluate import EVAL, evaluate
+    from trl_dgpq.collectors.experiment import quiet_torchrl
+    from trl_dgpq.collectors.runner import RunError
+    quiet_torchrl()
+    try:
+        if args.episodes < 1:
+            raise ValueError(f"--episodes must be positive, got {args.episodes}")
+        for folder in map(Path, args.runs):
+            df = evaluate(folder, args.episodes, progress=not args.no_progress)
+            run = load_run(folder)
+            column, label = run.domain.measure(run.env_id)
+            train = run.df[run.df.episode > run.df.episode.max() - args.episodes][column].mean()
+            print(f"{folder}: {label}, mean over {df.seed.nunique()} seeds x {args.episodes} evaluation episodes: "
+                  f"{df[column].mean():.4g} (the last {args.episodes} training episodes: {train:.4g}); "
+                  f"wrote {folder / EVAL}")
+    except (ValueError, RunError, OSError) as err:
+        print(f"{prog('evaluate')}: error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
