@@ -56,13 +56,34 @@ def test_mountaincar_flag_and_groups(tmp_path):
                      agent="dgpq")
     written, text = report([car, quiet, noisy], ["dqn car", "dqn quiet", "dgpq noisy"], tmp_path / "out",
                                   budget=600)
-    assert "| dqn car | 3 | 550 (2/3 seeds met it) |" in text
+    # IQM of 3 seeds trims nothing: (550 + 600 (never: the budget) + 120) / 3
+    assert "| dqn car | 3 | 550 (2/3 seeds met it) | 423 [" in text
     assert "## square (reward_noise=0.0)" in text and "## square (reward_noise=0.1)" in text
-    assert "| dgpq noisy | 1 | 200 (1/1 seeds met it) | 20 [20, 20] |" in text  # 10 episodes of 20
-    assert "| dqn quiet | 1 | never (0/1 seeds met it) | 40 [40, 40] |" in text
+    assert "| dgpq noisy | 1 | 200 (1/1 seeds met it) | 200 [200, 200] | 20 [20, 20] | 20 [20, 20] |" in text
+    assert "| dqn quiet | 1 | never (0/1 seeds met it) | 600 [600, 600] | 40 [40, 40] | 40 [40, 40] |" in text
     assert sorted(p.name for p in written) == ["compare-gym-MountainCar-v0.png", "compare-square-reward_noise=0.0.png",
                                                "compare-square-reward_noise=0.1.png", "compare.md"]
     assert all(p.stat().st_size > 0 for p in written)
+
+
+def test_probability_that_dgpq_improves_on_dqn_by_hand(tmp_path):
+    """Square (threshold: mean steps <= 25 over 10 episodes), budget 240 (the fewest any seed ran).
+    Steps to threshold: DGPQ 200, 200; DQN never (counted 240), 200 -> of the 4 pairs DGPQ wins 2 and
+    ties 2: P = (1 + 1 + 0.5 + 0.5) / 4. At budget (fewer steps better): DGPQ 20, 20; DQN 30, 20: the same."""
+    dgpq = fake_run(tmp_path / "g", "square", {0: [20] * 12, 1: [20] * 12}, agent="dgpq")
+    dqn = fake_run(tmp_path / "q", "square", {0: [30] * 12, 1: [20] * 12})
+    _, text = report([dgpq, dqn], ["dgpq", "dqn"], tmp_path / "out")
+    assert "- P(dgpq improves on dqn), 95 % CI: steps to threshold 0.75 [" in text
+    assert "; at budget 0.75 [" in text
+    _, text = report([dqn, dgpq], ["dqn", "dgpq"], tmp_path / "out2")
+    assert "P(dgpq improves on dqn)" in text and "P(dqn improves" not in text  # DGPQ against DQN only
+
+
+def test_profiles_over_tasks_are_drawn(tmp_path):
+    runs = [fake_run(tmp_path / f"{a}{t}", "square", {0: [20 + i] * 12, 1: [30] * 12}, agent=a,
+                     env_cfg={"max_steps": 100 + t}) for i, a in enumerate(("dgpq", "dqn")) for t in (0, 1)]
+    written, text = report(runs, ["g0", "g1", "q0", "q1"], tmp_path / "out")
+    assert (tmp_path / "out" / "profiles.png") in written and "![profiles](profiles.png)" in text
 
 
 def test_bad_input_is_one_line(tmp_path, capsys):

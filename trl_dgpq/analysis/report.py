@@ -12,6 +12,13 @@ the domain's measure against environment steps (each seed's mean over its last
 - at budget: the mean of each seed's last ``window`` episodes that ended within the
   budget (default: the runs' common ``env_steps``, else the fewest steps any of their
   seeds ran), median and IQR over seeds.
+
+Beside each median, the interquartile mean over seeds with its 95 % stratified bootstrap
+confidence interval (``stats.py``, by ``rliable``); for steps to threshold a seed that
+never met it counts as the budget (so that IQM is a lower bound). Under the table, the
+probability that a DGPQ run improves on a DQN run of the same task, with its CI; and
+``profiles.png``, rliable's performance profiles of each agent over every task it ran
+(at-budget scores, each task scaled to [0, 1] by the lowest and highest any run had).
 """
 from __future__ import annotations
 
@@ -24,6 +31,7 @@ import numpy as np
 import pandas as pd
 
 from .runs import load_run
+from .stats import iqm, normalised, oriented, probability_of_improvement, profiles
 from .summary import at_budget, curve, kernel_fits_per_seed, ms_per_seed_step, steps_to_threshold
 
 
@@ -55,6 +63,52 @@ def fmt_band(v: pd.Series) -> str:
     return text + (f" ({missing} seeds: no episode within the budget)" if missing else "")
 
 
+def fmt_iqm(values, digits: str = ".4g") -> str:
+    point, lo, hi = iqm(values)
+    return "–" if np.isnan(point) else f"{point:{digits}} [{lo:{digits}}, {hi:{digits}}]"
+
+
+def improvement_lines(scored, threshold) -> list:
+    """P(DGPQ run improves on DQN run), per pair on this task: on steps to threshold (fewer
+    is better) and at budget (the domain's direction)."""
+    lines = []
+    for x_label, x_run, x_steps, x_at in scored:
+        for y_label, y_run, y_steps, y_at in scored:
+            if x_run.agent != "dgpq" or y_run.agent != "dqn":
+                continue
+            cells = []
+            if threshold is not None:
+                cells.append("steps to threshold {:.2f} [{:.2f}, {:.2f}]".format(
+                    *probability_of_improvement(-x_steps, -y_steps)))
+            cells.append("at budget {:.2f} [{:.2f}, {:.2f}]".format(
+                *probability_of_improvement(oriented(x_at, threshold), oriented(y_at, threshold))))
+            lines.append(f"- P({x_label} improves on {y_label}), 95 % CI: " + "; ".join(cells) + ".")
+    return lines
+
+
+def profile_figure(task_scores: dict, out: Path):
+    """profiles.png: rliable's performance profiles over the tasks (None if fewer than two
+    tasks, or no agent ran them all)."""
+    scores = normalised(task_scores)
+    if not scores or next(iter(scores.values())).shape[1] < 2:
+        return None
+    import matplotlib.pyplot as plt
+
+    from .figures import save
+    taus = np.linspace(0.0, 1.0, 51)
+    curves, cis = profiles(scores, taus)
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for algo, y in curves.items():
+        line, = ax.plot(taus, y, label=f"{algo} ({scores[algo].shape[1]} tasks x {scores[algo].shape[0]} seeds)")
+        ax.fill_between(taus, cis[algo][0], cis[algo][1], color=line.get_color(), alpha=0.2, lw=0)
+    ax.set_xlabel("normalised score at budget tau (each task: 0 = worst run's, 1 = best run's)")
+    ax.set_ylabel("fraction of runs with score > tau")
+    ax.set_title("performance profiles (rliable; band: 95 % bootstrap CI)", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return save(fig, out / "profiles.png")
+
+
 def kernel_fits_cell(run) -> str:
     if "kernel_fits" in run.df:
         return f"{kernel_fits_per_seed(run.df):.1f}"
@@ -74,6 +128,7 @@ def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
         groups.setdefault((run.env, json.dumps(run.config["env"], sort_keys=True)), []).append((label, run))
     out.mkdir(parents=True, exist_ok=True)
     written, lines = [], ["# Environment steps to a threshold, and performance at a budget", ""]
+    task_scores = {}  # {agent: {task: higher-is-better scores at budget}}, for the profiles
     for (env, _), entries in groups.items():
         first = entries[0][1]
         name = group_name(env, first.config["env"], [json.loads(k[1]) for k in groups if k[0] == env])
@@ -84,15 +139,22 @@ def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
                   f"Budget: {b:,} environment steps per seed. Threshold: "
                   f"{threshold.text if threshold else 'none defined'}. "
                   f"At budget: {ylabel}, mean of each seed's last {window} episodes within the budget; "
-                  "median [IQR] over seeds.", "",
-                  "| run | seeds | steps to threshold (median) | at budget | kernel fits / seed | ms / seed-step |",
-                  "|---|---|---|---|---|---|"]
+                  "median [IQR] over seeds; IQM [95 % CI] over seeds (rliable).", "",
+                  "| run | seeds | steps to threshold (median) | steps to threshold, IQM [95 % CI] | at budget "
+                  "| at budget, IQM [95 % CI] | kernel fits / seed | ms / seed-step |",
+                  "|---|---|---|---|---|---|---|---|"]
         fig, ax = plt.subplots(figsize=(6.8, 4.2))
         grid = np.linspace(0, b, 200)[1:]
+        scored = []
         for label, run in entries:
             df = run.df
-            to = fmt_steps(steps_to_threshold(df, threshold, b)) if threshold else "–"
-            lines.append(f"| {label} | {df.seed.nunique()} | {to} | {fmt_band(at_budget(df, column, b, window))} "
+            steps = steps_to_threshold(df, threshold, b) if threshold else None
+            at = at_budget(df, column, b, window)
+            censored = steps.fillna(b).to_numpy() if threshold else None  # never: the budget
+            scored.append((label, run, censored, at.to_numpy()))
+            task_scores.setdefault(run.agent, {})[name] = oriented(at.dropna().to_numpy(), threshold)
+            lines.append(f"| {label} | {df.seed.nunique()} | {fmt_steps(steps) if threshold else '–'} "
+                         f"| {fmt_iqm(censored, ',.0f') if threshold else '–'} | {fmt_band(at)} | {fmt_iqm(at)} "
                          f"| {kernel_fits_cell(run)} | {ms_per_seed_step(df):.2f} |")
             c = curve(df, column, window, grid)
             with warnings.catch_warnings():  # grid points no seed has reached yet stay NaN
@@ -107,7 +169,11 @@ def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
         ax.set_title(f"{name}: median and IQR over seeds", fontsize=10)
         ax.legend(fontsize=8)
         written.append(save(fig, out / f"compare-{re.sub(r'[^A-Za-z0-9.=_-]+', '-', name).strip('-')}.png"))
-        lines.append("")
+        lines += ["", *improvement_lines(scored, threshold), ""]
+    profile = profile_figure(task_scores, out)
+    if profile is not None:
+        written.append(profile)
+        lines += ["![profiles](profiles.png)", ""]
     text = "\n".join(lines)
     (out / "compare.md").write_text(text)
     written.append(out / "compare.md")

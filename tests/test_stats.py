@@ -1,0 +1,44 @@
+"""IQM, probability of improvement and profiles (trl_dgpq/analysis/stats.py, via rliable), by hand."""
+import numpy as np
+import pytest
+
+from trl_dgpq.analysis import Threshold
+from trl_dgpq.analysis.stats import iqm, normalised, oriented, probability_of_improvement, profiles
+
+
+def test_iqm_is_the_mean_of_the_middle_half_and_its_interval_holds_it():
+    point, lo, hi = iqm([8.0, 1.0, 7.0, 2.0, 6.0, 3.0, 5.0, 4.0, np.nan])  # NaN dropped
+    assert point == pytest.approx((3 + 4 + 5 + 6) / 4)
+    assert 1.0 <= lo <= point <= hi <= 8.0 and lo < hi
+    assert iqm([8.0, 1.0, 7.0, 2.0, 6.0, 3.0, 5.0, 4.0]) == (point, lo, hi)  # a fixed bootstrap stream
+    assert np.isnan(iqm([np.nan])[0])
+
+
+def test_probability_of_improvement_counts_pairs_and_ties():
+    assert probability_of_improvement([5.0, 6.0], [1.0, 2.0, 3.0])[0] == 1.0
+    assert probability_of_improvement([1.0, 2.0], [5.0, 6.0])[0] == 0.0
+    # x = (1, 3) against y = (2, 2): pairs 1>2 no, 1>2 no, 3>2 yes, 3>2 yes -> 2 of 4
+    assert probability_of_improvement([1.0, 3.0], [2.0, 2.0])[0] == pytest.approx(0.5)
+    # a tie counts one half: x = (2,), y = (2, 1): 0.5 + 1 over 2 pairs
+    assert probability_of_improvement([2.0], [2.0, 1.0])[0] == pytest.approx(0.75)
+    p, lo, hi = probability_of_improvement([3.0, 4.0, 5.0, 1.0], [2.0, 2.5, 0.0, 3.5])
+    assert lo <= p <= hi
+
+
+def test_fewer_is_better_is_negated():
+    fewer = Threshold("steps", "<=", 25, 10, "")
+    assert list(oriented([3.0, -1.0], fewer)) == [-3.0, 1.0]
+    assert list(oriented([3.0], Threshold("return", ">=", 1, 1, ""))) == [3.0] and list(oriented([3.0], None)) == [3.0]
+
+
+def test_tasks_are_scaled_by_the_lowest_and_highest_run_and_profiles_count_runs_above_tau():
+    scores = normalised({"a": {"t1": np.array([0.0, 10.0]), "t2": np.array([5.0, 7.0])},
+                         "b": {"t1": np.array([5.0, 5.0, 5.0]), "t2": np.array([9.0, 5.0])},
+                         "c": {"t1": np.array([1.0, 1.0])}})                     # not on t2: left out
+    assert set(scores) == {"a", "b"}
+    np.testing.assert_allclose(scores["a"], [[0.0, 0.0], [1.0, 0.5]])          # t1 on [0, 10], t2 on [5, 9]
+    np.testing.assert_allclose(scores["b"], [[0.5, 1.0], [0.5, 0.0]])          # b's third t1 run cut
+    curves, cis = profiles(scores, np.array([0.25, 0.75]), reps=200)
+    np.testing.assert_allclose(curves["a"], [2 / 4, 1 / 4])   # a: 0, 0, 1, 0.5 -> above 0.25: 2; above 0.75: 1
+    np.testing.assert_allclose(curves["b"], [3 / 4, 1 / 4])
+    assert cis["a"].shape == (2, 2)
