@@ -316,7 +316,7 @@ def run_script(script: str, rerun: str, body: Callable[[], int]) -> int:
     """``body()``'s exit code; a bad request -> one line and 2, Ctrl-C -> how to go on and 130."""
     try:
         return body()
-    except (SweepError, runner.RunError) as err:
+    except (SweepError, runner.RunError, OSError) as err:  # OSError: a folder that cannot be written
         print(f"{script}: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

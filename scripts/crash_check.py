@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -105,7 +106,8 @@ def main(argv=None) -> int:
     p.add_argument("--checkpoint-every", default="5")
     p.add_argument("--set", nargs="*", default=[], help="more settings for train.py, as KEY=VALUE")
     p.add_argument("--seed", type=int, default=0, help="of the random signal times")
-    p.add_argument("--work", default=None, help="folder for the runs (default: a temporary one)")
+    p.add_argument("--work", default=None, help="folder for the runs (default: a temporary one, removed at the end "
+                                                "unless a trial failed)")
     p.add_argument("--json", default="crash-check.json")
     args = p.parse_args(argv)
     rng = random.Random(args.seed)
@@ -113,11 +115,25 @@ def main(argv=None) -> int:
     for item in args.set:
         settings += ["--set", item]
     work = Path(args.work or tempfile.mkdtemp(prefix="crash-check-"))
+    try:
+        ok = check(args, settings, work, rng)
+    except BaseException:
+        print(f"runs kept in {work}", file=sys.stderr)
+        raise
+    if args.work is None and ok:
+        shutil.rmtree(work, ignore_errors=True)
+    elif not ok:
+        print(f"runs kept in {work}", file=sys.stderr)
+    return 0 if ok else 1
+
+
+def check(args, settings, work: Path, rng) -> bool:
+    """The reference run and the trials; True if every trial passed every check."""
     ref = train(*settings, "--out", str(work / "reference"))
     _, err = ref.communicate(timeout=600)
     if ref.returncode:
         print(err, file=sys.stderr)
-        return 1
+        return False
     reference = rows(work / "reference")
     loop_s = float(read_csv_exact(work / "reference" / "episodes.csv").wall_s.sum())
     print(f"reference: {len(reference)} rows, episode loop {loop_s:.1f} s; runs in {work}")
@@ -134,7 +150,7 @@ def main(argv=None) -> int:
     Path(args.json).write_text(json.dumps(dict(settings=settings, reference_rows=len(reference), loop_s=loop_s,
                                                results=results, ok=ok), indent=1))
     print(f"{sum(r['ok'] for r in results)}/{len(results)} trials passed every check; wrote {args.json}")
-    return 0 if ok else 1
+    return ok
 
 
 if __name__ == "__main__":

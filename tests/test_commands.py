@@ -46,3 +46,29 @@ def test_a_very_large_seed_count_needs_a_yes(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr("sys.stdin.isatty", lambda: True)
     monkeypatch.setattr("builtins.input", lambda prompt: "y")
     train.confirm_many(3201, yes=False)                   # asked on a terminal, and confirmed
+
+
+@pytest.mark.parametrize("command", ["plot", "report", "evaluate"])
+def test_an_unwritable_or_missing_folder_is_one_line_not_a_traceback(command, tmp_path, capsys):
+    from trl_dgpq.commands import evaluate, plot, report
+    from tests.test_report import fake_run
+    run = fake_run(tmp_path / "run", "square", {0: [30, 20]}, agent="dgpq")
+    locked = tmp_path / "a-file"  # a folder under a file cannot be made, even by root
+    locked.write_text("")
+    main = {"plot": plot.main, "report": report.main, "evaluate": evaluate.main}[command]
+    argv = {"plot": [str(run), "--out", str(locked / "figs")], "report": [str(run), "--out", str(locked / "r")],
+            "evaluate": [str(run), "--no-progress"]}[command]  # evaluate: the run has no checkpoint
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "error:" in err and "Traceback" not in err
+
+
+def test_sweep_into_an_unwritable_folder_is_one_line(tmp_path, capsys):
+    from trl_dgpq.commands import sweep
+    locked = tmp_path / "a-file"
+    locked.write_text("")
+    toml = tmp_path / "s.toml"
+    toml.write_text('[defaults]\nseeds = 1\nepisodes = 1\n[[experiment]]\nname = "a"\nenv = "square"\n')
+    assert sweep.main([str(toml), "--out", str(locked / "s")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "error:" in err

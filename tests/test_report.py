@@ -119,3 +119,16 @@ def test_plot_draws_a_folder_without_its_config(tmp_path):
     (run / "config.json").unlink()
     assert plot.main([str(run)]) == 0
     assert (run / "steps_per_episode.png").is_file() and (run / "time_per_step.png").is_file()
+
+
+def test_time_per_step_is_the_wall_time_the_console_prints_and_legends_name_agents(tmp_path):
+    from trl_dgpq.analysis.figures import FIGURES
+    from trl_dgpq.commands.plot import default_labels
+    df = pd.DataFrame({"steps": [4, 10], "wall_s": [0.002, 0.01], "cpu_s": [0.004, 0.02]})
+    assert list(FIGURES["time_per_step.png"][1](df)) == pytest.approx([0.5, 1.0])   # ms per step, from wall_s
+    a = fake_run(tmp_path / "square-dgpq-p-20261123-101010", "square", {0: [3]}, agent="dgpq")
+    b = fake_run(tmp_path / "square-dqn-p-20261123-101011", "square", {0: [3]})
+    c = fake_run(tmp_path / "again", "square", {0: [3]})
+    (c / "config.json").unlink()
+    assert default_labels([load_run(a), load_run(b), load_run(c, need_config=False)]) == ["dgpq p", "dqn p", "again"]
+    assert default_labels([load_run(b), load_run(b)]) == [b.name, b.name]  # the same label twice: the folders'

@@ -177,6 +177,15 @@ def test_crash_check_script(tmp_path):
     assert done.returncode == 0
 
 
+@pytest.mark.slow
+def test_crash_check_removes_its_temporary_folder(tmp_path):
+    import os
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "crash_check.py"), "--trials", "1", "--seeds", "2",
+                           "--episodes", "20", "--json", str(tmp_path / "cc.json")],
+                          env={**os.environ, "TMPDIR": str(tmp_path)})
+    assert done.returncode == 0 and not list(tmp_path.glob("crash-check-*"))
+
+
 def test_liquidation_figures_and_table_pair_runs_by_seed_and_episode(tmp_path):
     """plot.py on liquidation runs: the table divides each run's mean ac_cost by the
     ac-optimal run's mean over the same (seed, episode) pairs only. TWAP runs seeds 1-2,

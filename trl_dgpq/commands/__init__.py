@@ -7,3 +7,17 @@ ENTRY = None  # "trl-dgpq" when run through the console command
 def prog(name: str) -> str:
     """The command's name as the user typed it, for usage lines and messages."""
     return f"{ENTRY} {name}" if ENTRY else f"{name}.py"
+
+
+def guarded(name: str, body) -> int:
+    """``body()``'s exit code; a bad request or a file that cannot be read or written -> one
+    line and 2, Ctrl-C -> one line and 130 (never a traceback for these)."""
+    import sys
+    try:
+        return body()
+    except (ValueError, OSError) as err:
+        print(f"{prog(name)}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog(name)}: interrupted", file=sys.stderr)
+        return 130

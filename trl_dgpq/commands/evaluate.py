@@ -16,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from trl_dgpq.commands import prog
+from trl_dgpq.commands import guarded, prog
 
 
 def main(argv=None) -> int:
@@ -26,25 +26,24 @@ def main(argv=None) -> int:
     p.add_argument("--episodes", type=int, default=10, help="evaluation episodes per seed [10]")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
+    return guarded("evaluate", lambda: run(args))
+
+
+def run(args) -> int:
     from trl_dgpq.analysis import load_run
     from trl_dgpq.collectors.evaluate import EVAL, evaluate
     from trl_dgpq.collectors.experiment import quiet_torchrl
-    from trl_dgpq.collectors.runner import RunError
     quiet_torchrl()
-    try:
-        if args.episodes < 1:
-            raise ValueError(f"--episodes must be positive, got {args.episodes}")
-        for folder in map(Path, args.runs):
-            df = evaluate(folder, args.episodes, progress=not args.no_progress)
-            run = load_run(folder)
-            column, label = run.domain.measure(run.env_id)
-            train = run.df[run.df.episode > run.df.episode.max() - args.episodes][column].mean()
-            print(f"{folder}: {label}, mean over {df.seed.nunique()} seeds x {args.episodes} evaluation episodes: "
-                  f"{df[column].mean():.4g} (the last {args.episodes} training episodes: {train:.4g}); "
-                  f"wrote {folder / EVAL}")
-    except (ValueError, RunError, OSError) as err:
-        print(f"{prog('evaluate')}: error: {err}", file=sys.stderr)
-        return 2
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be positive, got {args.episodes}")
+    for folder in map(Path, args.runs):
+        df = evaluate(folder, args.episodes, progress=not args.no_progress)
+        run = load_run(folder)
+        column, label = run.domain.measure(run.env_id)
+        train = run.df[run.df.episode > run.df.episode.max() - args.episodes][column].mean()
+        print(f"{folder}: {label}, mean over {df.seed.nunique()} seeds x {args.episodes} evaluation episodes: "
+              f"{df[column].mean():.4g} (the last {args.episodes} training episodes: {train:.4g}); "
+              f"wrote {folder / EVAL}")
     return 0
 
 

@@ -6,7 +6,7 @@
 
 Writes into the (first) run folder, or --out:
     steps_per_episode.png   steps to goal per episode (seed report Fig. 2)
-    time_per_step.png       CPU time per step per episode (seed report Fig. 3)
+    time_per_step.png       wall time per step per episode, as the console reports it (seed report Fig. 3)
 Each curve is the median across seeds with the inter-quartile band.
 
 Runs that all belong to a domain with figures of its own get those instead
@@ -30,7 +30,14 @@ import sys
 from pathlib import Path
 
 from trl_dgpq.analysis import load_run
-from trl_dgpq.commands import prog
+from trl_dgpq.commands import guarded, prog
+
+
+def default_labels(runs) -> list:
+    """Agent and preset (what a reader wants in a legend, not a timestamped folder name);
+    the folder's name for a run without its config, and where two runs would share a label."""
+    labels = [f"{r.agent} {r.preset or 'default'}" if r.config else r.path.name for r in runs]
+    return [lab if labels.count(lab) == 1 else r.path.name for lab, r in zip(labels, runs)]
 
 
 def main(argv=None) -> int:
@@ -53,14 +60,17 @@ def main(argv=None) -> int:
     for r in args.runs:
         if not (Path(r) / "episodes.csv").is_file():
             p.error(f"{r}/episodes.csv not found (run scripts/train.py --out {r} first)")
-    labels = args.labels or [Path(r).name for r in args.runs]
-    if len(labels) != len(args.runs):
+    if args.labels and len(args.labels) != len(args.runs):
         p.error("give one label per run")
     try:
         runs = [load_run(r, need_config=False) for r in args.runs]
     except ValueError as err:
         p.error(str(err))
-    out = Path(args.out or args.runs[0])
+    labels = args.labels or default_labels(runs)
+    return guarded("plot", lambda: draw(runs, labels, Path(args.out or args.runs[0]), args))
+
+
+def draw(runs, labels, out: Path, args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     domains = {run.domain and run.domain.name for run in runs}  # None: a run without its config.json
     own = getattr(runs[0].domain.analysis(), "figures", None) if len(domains) == 1 and None not in domains else None

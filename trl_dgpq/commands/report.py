@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from trl_dgpq.analysis.report import report
-from trl_dgpq.commands import prog
+from trl_dgpq.commands import guarded, prog
 
 
 def main(argv=None) -> int:
@@ -27,15 +27,15 @@ def main(argv=None) -> int:
     p.add_argument("--window", type=int, default=10, help="episodes in the running mean of the curves and table")
     p.add_argument("--out", default=None, help="folder for the figures and compare.md (default: the first run's)")
     args = p.parse_args(argv)
-    try:
-        if args.labels and len(args.labels) != len(args.runs):
-            raise ValueError(f"{len(args.runs)} runs need {len(args.runs)} labels, got {len(args.labels)}")
-        if args.window < 1 or (args.budget is not None and args.budget < 1):
-            raise ValueError("--window and --budget must be positive")
-        written, text = report(args.runs, args.labels, Path(args.out or args.runs[0]), args.budget, args.window)
-    except ValueError as err:
-        print(f"{prog('report')}: error: {err}", file=sys.stderr)
-        return 2
+    return guarded("report", lambda: run(args))
+
+
+def run(args) -> int:
+    if args.labels and len(args.labels) != len(args.runs):
+        raise ValueError(f"{len(args.runs)} runs need {len(args.runs)} labels, got {len(args.labels)}")
+    if args.window < 1 or (args.budget is not None and args.budget < 1):
+        raise ValueError("--window and --budget must be positive")
+    written, text = report(args.runs, args.labels, Path(args.out or args.runs[0]), args.budget, args.window)
     print(text)
     for path in written:
         print("wrote", path)
