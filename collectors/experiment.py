@@ -75,7 +75,8 @@ class RunConfig:
     seeds: Tuple[int, ...] = setting(tuple(range(8)), "count N (seeds 0..N-1), range A-B (inclusive) or "
                                                       "list a,b,c; all run in one batch",
                                      parse=lambda v: tuple(parse_seeds(v)))
-    episodes: int = setting(50, "episodes per seed", within="[1, inf)")
+    episodes: int = setting(50, "episodes per seed (with --env-steps and no --episodes: until the budget)",
+                            within="[1, inf)")
     env_steps: int = setting(0, "budget of environment steps per seed: a seed stops at the end of the episode "
                                 "that reaches it (0: none; episodes still caps)", within="[0, inf)")
     checkpoint_every: int = setting(10, "checkpoint every K episodes per seed (0: only on interrupt and at the end)",
@@ -134,7 +135,11 @@ def resolve_config(settings: Optional[Dict[str, Any]] = None, base: Optional[dic
     Raises ValueError with one line for anything wrong."""
     settings = {**(settings or {}), **kw}
     start = from_dict(RunConfig, base["run"]) if base else RunConfig()
-    run = check_config(with_overrides(start, run_settings(settings)))
+    given_run = run_settings(settings)
+    run = check_config(with_overrides(start, given_run))
+    if run.env_steps and "episodes" not in given_run and not base:
+        # a budget alone is enough: a seed's budget of N steps ends within N episodes
+        run = with_overrides(run, {"episodes": run.env_steps})
     if base and (run.env, run.agent) != (base["run"]["env"], base["run"]["agent"]):
         raise ValueError("a recorded config keeps its env and agent; start a new run to change them")
     env_cls, agent_cls = classes(to_dict(run))

@@ -85,7 +85,10 @@ class OnlineCollector:
         env, agent = self.env, self.agent
         S = env.batch_size[0]
         rows = []
-        bar = tqdm(total=None if self.env_steps else S * self.episodes, initial=self.episodes_done, desc=self.desc,
+        # progress in seed-episodes, or with a budget in seed-steps (each seed's counted up to its budget)
+        budget = self.env_steps
+        bar = tqdm(total=S * (budget or self.episodes), initial=self._progress(), desc=self.desc,
+                   unit="seed-steps" if budget else "seed-episodes", unit_scale=bool(budget),
                    disable=not self.progress, leave=False, mininterval=0.5)
         td = env.reset() if self.td is None else self.td
         steps_here = 0
@@ -113,15 +116,25 @@ class OnlineCollector:
             if ended.any():
                 new_rows = self._finish(ended, nxt)
                 rows += new_rows
-                bar.update(len(new_rows))
-                bar.set_postfix(steps=self.total, refresh=False)
+                if not budget:
+                    bar.update(len(new_rows))
+            if budget and self.progress and self.total % 50 == 0:
+                bar.update(self._progress() - bar.n)
             td = self.td = td_next
             if new_rows and on_rows is not None:
                 on_rows(new_rows)
             if after_step is not None and after_step(self):
                 break
+        if budget and self.progress:
+            bar.update(self._progress() - bar.n)
         bar.close()
         return frame(rows)
+
+    def _progress(self) -> int:
+        """Seed-episodes done, or with a budget the seeds' environment steps (each up to it)."""
+        if self.env_steps:
+            return int(self.env_steps_done.clamp(max=self.env_steps).sum())
+        return self.episodes_done
 
     def _check_finite(self, reward, obs, active) -> None:
         """A NaN or inf from the env stops the run here, naming where (it would otherwise

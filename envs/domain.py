@@ -7,7 +7,8 @@ A domain is one folder ``envs/<name>/`` whose ``__init__.py`` holds one line,
     presets.py    ``PRESETS = {agent: {preset: {"env": {...}, "agent": {...}}}}`` and ``DEFAULT``,
                   the default preset's name (every agent the domain supports has it)
     baselines.py  (optional) the domain's own scripted agents, named in ``Domain(baselines=...)``
-    analysis.py   (optional) ``MEASURE``, ``THRESHOLD`` and ``figures()``: see ``trl_dgpq.analysis``
+    analysis.py   (optional) ``MEASURE``, ``THRESHOLD``, ``TERMINATED`` and ``figures()``: see
+                  ``trl_dgpq.analysis``
 
 An env name is the domain's name (``square``) or, for a domain over a family of
 envs, ``<domain>:<id>`` (``gym:CartPole-v1``); ``Domain`` subclasses that take an
@@ -91,3 +92,7 @@ class Domain:
     def threshold(self, env_id: Optional[str] = None):
         """The ``trl_dgpq.analysis.Threshold`` a learner must meet here (None: not defined)."""
         return getattr(self.analysis(), "THRESHOLD", None)
+
+    def terminated_means(self, env_id: Optional[str] = None) -> str:
+        """What an episode's ``terminated`` says here (``TERMINATED`` in its analysis.py)."""
+        return getattr(self.analysis(), "TERMINATED", "ended by the env, not the step cap")

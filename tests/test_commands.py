@@ -72,3 +72,30 @@ def test_sweep_into_an_unwritable_folder_is_one_line(tmp_path, capsys):
     assert sweep.main([str(toml), "--out", str(locked / "s")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "error:" in err
+
+
+def test_a_budget_alone_is_enough_and_the_summary_says_what_terminated_means(tmp_path, capsys):
+    from trl_dgpq.collectors.experiment import resolve_config
+    assert resolve_config(env="corridor", env_steps=30)["run"]["episodes"] == 30   # a budget of 30 ends within 30
+    assert resolve_config(env="corridor", env_steps=30, episodes=2)["run"]["episodes"] == 2
+    assert resolve_config(env="corridor")["run"]["episodes"] == 50
+    out = tmp_path / "run"
+    assert train.main(["--env", "corridor", "--agent", "constant", "--seeds", "2", "--env-steps", "25",
+                       "--out", str(out), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "2 seeds x 25 env steps ->" in text and "terminated (reached the goal) in 100% of episodes" in text
+    import pandas as pd
+    df = pd.read_csv(out / "episodes.csv")
+    assert (df.groupby("seed").steps.sum() >= 25).all() and (df.groupby("seed").steps.sum() < 25 + 50).all()
+
+
+def test_the_progress_of_a_budget_counts_each_seeds_steps_up_to_it():
+    import torch
+    from trl_dgpq.collectors.online import OnlineCollector
+    from trl_dgpq.envs.corridor.env import CorridorEnv
+    c = OnlineCollector(CorridorEnv([0, 1]), None, episodes=5, progress=False, env_steps=10)
+    c.env_steps_done = torch.tensor([4, 17])   # seed 1 ran past its budget to finish its episode
+    assert c._progress() == 4 + 10
+    c = OnlineCollector(CorridorEnv([0, 1]), None, episodes=5, progress=False)
+    c.episode = torch.tensor([2, 3])
+    assert c._progress() == 5

@@ -3,4 +3,5 @@
 from trl_dgpq.analysis import Threshold
 
 MEASURE = ("steps", "steps per episode")
+TERMINATED = "reached the goal"
 THRESHOLD = Threshold("steps", "<=", 13, 10, "mean steps per episode <= 13 over 10 episodes")

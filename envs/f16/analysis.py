@@ -17,6 +17,7 @@ import pandas as pd
 from trl_dgpq.analysis import Threshold, ms_per_seed_step, rolling
 
 MEASURE = ("return", "episode reward")
+TERMINATED = "left the flight envelope"
 THRESHOLD = Threshold("return", ">=", -41, 10, "mean episode reward >= -41 (PD's -37 minus 10%) over 10 episodes")
 
 # GWH14's Figure 3 as read from the paper: (episode, reward) marks per Lipschitz constant.

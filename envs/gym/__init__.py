@@ -30,5 +30,8 @@ class GymDomain(Domain):
     def threshold(self, env_id: Optional[str] = None):
         return self.analysis().THRESHOLDS.get(env_id)
 
+    def terminated_means(self, env_id: Optional[str] = None) -> str:
+        return self.analysis().TERMINATED.get(env_id, "ended by gymnasium, not the step cap")
+
 
 DOMAIN = GymDomain(__name__, example=dict(max_steps=12))

@@ -6,3 +6,10 @@ THRESHOLDS = {
     "MountainCar-v0": Threshold("terminated", ">=", 1, 1, "an episode reaches the flag"),
     "Acrobot-v1": Threshold("return", ">=", -100, 10, "mean return >= -100 over 10 episodes"),
 }
+
+# what "terminated" (gymnasium's, not the step cap) means per id, for the summary line
+TERMINATED = {
+    "CartPole-v1": "the pole fell or the cart left the track",
+    "MountainCar-v0": "reached the flag",
+    "Acrobot-v1": "swung the tip above the line",
+}

@@ -12,6 +12,7 @@ from .almgren_chriss import ACModel
 from .env import LiquidationConfig
 
 MEASURE = ("implementation_shortfall", "implementation shortfall ($)")
+TERMINATED = "no shares left"
 DEFAULT_LAST = 1000  # episodes at the end that the comparison table uses
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 from trl_dgpq.analysis import Threshold, kernel_fits_per_seed, ms_per_seed_step
 
 MEASURE = ("steps", "steps per episode")
+TERMINATED = "the block reached the goal or fell off the table"
 THRESHOLD = Threshold("success", ">=", 0.9, 10, "success in >= 90 % of 10 episodes")
 DEFAULT_LAST = 20  # episodes at the end that the table uses
 

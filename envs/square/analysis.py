@@ -7,6 +7,7 @@ from trl_dgpq.analysis import Threshold, agree, kernel_fits_per_seed, median_ste
 
 
 MEASURE = ("steps", "steps per episode")
+TERMINATED = "reached the goal"
 THRESHOLD = Threshold("steps", "<=", 25, 10, "mean steps per episode <= 25 over 10 episodes")
 
 # ------------------------------------------------------------ the reproduction (scripts/reproduce.py)

@@ -30,7 +30,7 @@ from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import cli_owners, describe, quiet_torchrl, resolve_config
 from trl_dgpq.commands import prog
 from trl_dgpq.config import describe_default
-from trl_dgpq.envs import domain
+from trl_dgpq.envs import domain, split_name
 
 PROCESS_FLAGS = ("out", "resume", "overwrite", "config", "set", "no_progress", "print_config", "yes")
 
@@ -84,6 +84,14 @@ def make_parser() -> argparse.ArgumentParser:
         else:
             g.add_argument(flag, dest=key, default=None, metavar=key.upper(), help=text)
     return p
+
+
+def length(run: dict) -> str:
+    """What each seed runs: "50 episodes", or "20,000 env steps" (and the episode cap if it binds)."""
+    if not run.get("env_steps"):
+        return f"{run['episodes']:,} episodes"
+    cap = f" (at most {run['episodes']:,} episodes)" if run["episodes"] < run["env_steps"] else ""
+    return f"{run['env_steps']:,} env steps{cap}"
 
 
 def given_settings(args, parser) -> dict:
@@ -148,7 +156,7 @@ def _main(argv=None) -> int:
             runner.check_memory(config)
             run = config["run"]
             folder = runner.RunFolder.create(args.out, describe(config).replace("/", "-"), args.overwrite)
-            print(f"{describe(config)}: {len(run['seeds'])} seeds x {run['episodes']} episodes -> {folder.path}")
+            print(f"{describe(config)}: {len(run['seeds'])} seeds x {length(run)} -> {folder.path}")
             df = runner.start(config, folder, progress=not args.no_progress)
     except runner.Interrupted as stop:
         print(f"{stop} after {stop.episodes_done} episodes; checkpoint saved. "
@@ -168,9 +176,11 @@ def summarise(df, config) -> None:
     line = f"steps per episode, median over seeds: episode 1: {steps.loc[1].median():g}"
     if len(late):
         line += f", episodes 3+: {late.steps.median():g}"
-    print(f"{line}; terminated in {df.terminated.mean():.0%} of episodes; "
+    d = domain(config["run"]["env"])
+    means = d.terminated_means(split_name(config["run"]["env"])[1])
+    print(f"{line}; terminated ({means}) in {df.terminated.mean():.0%} of episodes; "
           f"{ms_per_seed_step(df) * 1e3:.0f} us per seed-step")
-    for extra in getattr(domain(config["run"]["env"]).analysis(), "summary", lambda df: [])(df):
+    for extra in getattr(d.analysis(), "summary", lambda df: [])(df):
         print(extra)
 
 
