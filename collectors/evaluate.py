@@ -57,17 +57,25 @@ def sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def evaluate_job(job: Path, episodes: int, progress: bool = False) -> pd.DataFrame:
-    """``episodes`` evaluation episodes per seed of the run in ``job``; its checkpoint unchanged."""
+def restore(job: Path):
+    """(config, env, agent, checkpoint) of the run in ``job``: the agent as its last checkpoint
+    left it, the env fresh (its training state is ``checkpoint["env"]``)."""
     config = json.loads((job / "config.json").read_text())
     path = job / CHECKPOINT
-    before = sha256(path)
     try:
         state = torch.load(path, weights_only=True)
     except Exception as err:
         raise RunError(f"cannot read {path}: {err}") from None
     env, agent = build(config)
     agent.load_state_dict(state["agent"])
+    return config, env, agent, state
+
+
+def evaluate_job(job: Path, episodes: int, progress: bool = False) -> pd.DataFrame:
+    """``episodes`` evaluation episodes per seed of the run in ``job``; its checkpoint unchanged."""
+    path = job / CHECKPOINT
+    before = sha256(path)
+    config, env, agent, _ = restore(job)
     env.for_evaluation()
     rows = OnlineCollector(env, Frozen(agent), episodes, progress=progress,
                            desc=f"evaluate {describe(config)}").run()
@@ -89,4 +97,4 @@ def evaluate(folder, episodes: int = 10, progress: bool = False) -> pd.DataFrame
     return df
 
 
-__all__ = ["EVAL", "Frozen", "evaluate", "evaluate_job", "frame", "jobs"]
+__all__ = ["EVAL", "Frozen", "evaluate", "evaluate_job", "frame", "jobs", "restore"]

@@ -80,3 +80,30 @@ def test_a_folder_without_a_checkpoint_is_one_line(tmp_path, capsys):
         evaluate(tmp_path)
     assert evaluate_command.main([str(tmp_path), "--no-progress"]) == 2
     assert "error:" in capsys.readouterr().err
+
+
+def test_the_square_qhat_grid_is_the_lipschitz_envelope_by_hand():
+    """Q̂ with two pairs for action 0 (L = 2, V_max = 3, L1): Q̂_0(x) = min(3, 1 + 2|x - s1|_1,
+    0.5 + 2|x - s2|_1); the other actions hold no pair: V_max everywhere."""
+    from trl_dgpq.dgpq import DGPQ, DGPQConfig
+    from trl_dgpq.envs.square.analysis import qhat_grid
+    agent = DGPQ(DGPQConfig(lipschitz=2.0, v_max=3.0), [0, 1], 2, 4)
+    for s, mu in (((0.2, 0.2), 1.0), ((0.9, 0.5), 0.5)):
+        agent.qhat.insert(torch.tensor([s, s], dtype=torch.float64), torch.tensor([0, 0]),
+                          torch.tensor([mu, mu], dtype=torch.float64), torch.tensor([True, False]))
+    xs, q = qhat_grid(agent, n=5)
+    for i, y in enumerate(xs):
+        for j, x in enumerate(xs):
+            expect = min(3.0, 1.0 + 2 * (abs(x - 0.2) + abs(y - 0.2)), 0.5 + 2 * (abs(x - 0.9) + abs(y - 0.5)))
+            assert q[i, j, 0] == pytest.approx(expect)
+    assert (q[:, :, 1:] == 3.0).all()
+    assert (qhat_grid(agent, n=5, row=1)[1] == 3.0).all()   # seed row 1 got no pair
+
+
+def test_plot_draws_qhat_and_the_evaluation_of_an_evaluated_dgpq_run(tmp_path):
+    from trl_dgpq.commands import plot
+    out = trained(tmp_path, "--seeds", "2", "--episodes", 3)
+    evaluate(out, episodes=2)
+    assert plot.main([str(out), "--out", str(tmp_path / "fig")]) == 0
+    for name in ("steps_per_episode.png", "time_per_step.png", "qhat.png", "eval_returns.png"):
+        assert (tmp_path / "fig" / name).stat().st_size > 10_000, name

@@ -60,25 +60,16 @@ def flights(folder: Path) -> dict:
     """{name: flight} for the learner whose checkpoint is in ``folder`` (a run, or a sweep
     experiment's first job) and for PD and LQR, on the same next episode of its first seed
     (the env restored from the checkpoint: the noise of an episode it never trained on)."""
-    import torch
-
-    from trl_dgpq.collectors.experiment import build
     from trl_dgpq.agents import agent_class
-    jobs = [folder] + sorted((folder / "jobs").glob("*"))
-    job = next((j for j in jobs if (j / "checkpoint.pt").is_file()), None)
-    if job is None:
-        raise ValueError(f"{folder} holds no checkpoint.pt")
-    config = json.loads((job / "config.json").read_text())
-    checkpoint = torch.load(job / "checkpoint.pt", weights_only=True)
-    env, agent = build(config)
-    agent.load_state_dict(checkpoint["agent"])
+    from trl_dgpq.collectors.evaluate import Frozen, jobs, restore
+    config, env, agent, checkpoint = restore(jobs(folder)[0])
     out = {}
     for name in (config["run"]["agent"], "pd", "lqr"):
         env.load_state_dict(checkpoint["env"])
         if name in ("pd", "lqr"):
             cls = agent_class(name, config["run"]["env"])
             agent = cls.make(cls.Config(), env.info, list(config["run"]["seeds"]))
-        out[name] = fly(env, agent.act)
+        out[name] = fly(env, Frozen(agent).act)  # the learner with exploration off
     return out
 
 

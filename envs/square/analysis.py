@@ -2,6 +2,9 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Optional
+
+import numpy as np
 
 from trl_dgpq.analysis import Threshold, agree, kernel_fits_per_seed, median_steps, ms_per_seed_step
 
@@ -60,3 +63,97 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
             + "\n".join(rows) + "\n\n" + "\n".join(sentences)
             + "\n\n![steps](square/steps_per_episode.png) ![time](square/time_per_step.png) "
               "![kernels](square-kernels/steps_per_episode.png)\n")
+
+
+# ------------------------------------------------------------ what DGPQ learned (scripts/plot.py)
+def qhat_grid(agent, n: int = 41, row: int = 0):
+    """(xs, Q) with Q[i, j, a] = Q̂_a at the state (xs[j], xs[i]) of seed row ``row``."""
+    import torch
+    xs = torch.linspace(0.0, 1.0, n, dtype=torch.float64)
+    q = torch.empty(n, n, agent.A, dtype=torch.float64)
+    for i, y in enumerate(xs):
+        for j, x in enumerate(xs):
+            state = torch.tensor([[x, y]], dtype=torch.float64).expand(agent.S, 2)
+            q[i, j] = agent.qhat(agent.features(state))[row]
+    return xs.numpy(), q.numpy()
+
+
+def greedy_path(env, agent, row: int = 0) -> np.ndarray:
+    """Seed row ``row``'s positions over one evaluation episode, exploration off."""
+    from trl_dgpq.collectors.evaluate import Frozen
+    policy = Frozen(agent)
+    env.for_evaluation()
+    td = env.reset()
+    path = [td["observation"][row].numpy().copy()]
+    while True:
+        td["action"] = policy.act(td)
+        td = env.step(td)["next"]
+        path.append(td["observation"][row].numpy().copy())
+        if bool(td["done"][row]):
+            return np.array(path)
+        td = td.exclude("reward", "done", "terminated", "truncated")
+
+
+def qhat_figure(folder: Path, out: Path, title: str = "") -> Optional[Path]:
+    """qhat.png: Q̂ of each action over the square for the first seed of the DGPQ run in
+    ``folder`` (its last checkpoint), its stored pairs as dots, the goal, and one greedy
+    evaluation episode; beside them the greedy value max_a Q̂ and the greedy action.
+    None for an agent without Q̂."""
+    import matplotlib.pyplot as plt
+
+    from trl_dgpq.analysis.figures import save
+    from trl_dgpq.collectors.evaluate import jobs, restore
+    config, env, agent, _ = restore(jobs(folder)[0])
+    if not hasattr(agent, "qhat") or agent.scale is not None:  # positions are Q̂'s states as they are
+        return None
+    xs, q = qhat_grid(agent)
+    names = env.action_names
+    seed = config["run"]["seeds"][0]
+    path = greedy_path(env, agent)
+    goal, radius = env.cfg.goal, env.cfg.goal_radius
+    panels = len(names) + 2
+    fig, axes = plt.subplots(1, panels, figsize=(3.1 * panels, 3.3), constrained_layout=True)
+    lo, hi = float(np.nanmin(q)), float(np.nanmax(q))
+    extent = (0, 1, 0, 1)
+    for a, (ax, name) in enumerate(zip(axes, names)):
+        im = ax.imshow(q[:, :, a], origin="lower", extent=extent, vmin=lo, vmax=hi, cmap="viridis")
+        valid = np.isfinite(agent.qhat.mu[0, a].numpy())
+        pts = agent.qhat.s[0, a].numpy()[valid]
+        ax.plot(pts[:, 0], pts[:, 1], ".", color="w", ms=2, alpha=0.7)
+        ax.set_title(f"Q̂({name}): {valid.sum()} pairs", fontsize=9)
+    fig.colorbar(im, ax=axes[len(names) - 1], shrink=0.8)
+    greedy = axes[-2].imshow(q.max(-1), origin="lower", extent=extent, cmap="viridis")
+    axes[-2].set_title("greedy value max_a Q̂", fontsize=9)
+    fig.colorbar(greedy, ax=axes[-2], shrink=0.8)
+    cmap = plt.get_cmap("tab10", len(names))
+    axes[-1].imshow(q.argmax(-1), origin="lower", extent=extent, cmap=cmap, vmin=-0.5, vmax=len(names) - 0.5)
+    for a, name in enumerate(names):
+        axes[-1].plot([], [], "s", color=cmap(a), label=name)
+    axes[-1].legend(fontsize=7, loc="lower right")
+    axes[-1].set_title("greedy action (ties: lowest index)", fontsize=9)
+    for ax in axes:
+        ax.add_patch(plt.Circle(goal, radius, fill=False, color="r", lw=1.2))
+        ax.plot(path[:, 0], path[:, 1], "-", color="r", lw=1.0)
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 1)
+        ax.set_xlabel("x")
+    axes[0].set_ylabel("y")
+    fig.suptitle(f"{title + ': ' if title else ''}seed {seed} after {folder.name}'s training; dots: Q̂'s pairs; "
+                 f"red: the goal and a greedy evaluation episode ({len(path) - 1} steps)", fontsize=9)
+    fig.savefig(out / "qhat.png", dpi=110)
+    plt.close(fig)
+    return out / "qhat.png"
+
+
+def figures(runs, labels, out: Path, title: str = "", **_) -> list:
+    """The generic episode figures, and qhat.png for the first DGPQ run with a checkpoint."""
+    from trl_dgpq.analysis.figures import episode_figures
+    written = episode_figures(runs, labels, out, title=title)
+    for run in runs:
+        if run.config and run.agent == "dgpq" and ((run.path / "checkpoint.pt").is_file()
+                                                   or any(run.path.glob("jobs/*/checkpoint.pt"))):
+            path = qhat_figure(run.path, out, title)
+            if path is not None:
+                written.append(path)
+            break
+    return written

@@ -60,3 +60,21 @@ def episode_figures(runs, labels, out: Path, logy_steps: bool = True, title: str
         ax.set_title(f"{ylabel}: median over seeds" + (f" ({title})" if title else ""), fontsize=9)
         written.append(save(fig, out / fname))
     return written
+
+
+def evaluation_figure(runs, labels, out: Path, column: str, ylabel: str):
+    """eval_returns.png: the distribution of ``column`` over every (seed, evaluation episode)
+    of each run that has an eval.csv (``evaluate``); None if none has."""
+    import pandas as pd
+    found = [(label, pd.read_csv(run.path / "eval.csv")) for run, label in zip(runs, labels)
+             if (run.path / "eval.csv").is_file()]
+    if not found:
+        return None
+    fig, ax = plt.subplots(figsize=(max(4.0, 1.2 + 1.3 * len(found)), 4.0))
+    ax.boxplot([df[column] for _, df in found], showmeans=True)
+    ax.set_xticks(range(1, len(found) + 1), [f"{label}\n({df.seed.nunique()} seeds x {df.episode.max()})"
+                                             for label, df in found], fontsize=7)
+    ax.set_ylabel(ylabel)
+    ax.set_title("evaluation, exploration off\n(box: quartiles; triangle: mean)", fontsize=9)
+    ax.grid(alpha=0.3, axis="y")
+    return save(fig, out / "eval_returns.png")

@@ -9,8 +9,13 @@ Writes into the (first) run folder, or --out:
     time_per_step.png       wall time per step per episode, as the console reports it (seed report Fig. 3)
 Each curve is the median across seeds with the inter-quartile band.
 
-Runs that all belong to a domain with figures of its own get those instead
-(``figures`` in ``envs/<domain>/analysis.py``):
+Runs that were evaluated (``evaluate``: eval.csv) also get eval_returns.png, the
+distribution of the evaluation's measure per run. Runs that all belong to a domain with
+figures of its own get those instead of the two above (``figures`` in
+``envs/<domain>/analysis.py``):
+    square                  the two above, and qhat.png (Q̂ of each action over the square for
+                            the first DGPQ run's first seed, its pairs, the goal, a greedy
+                            evaluation episode, the greedy value and action)
     liquidation             liquidation_cost.png (mean shortfall and ac_cost per block of
                             episodes against the AC optimum, seed report Fig. 6), liquidation_time.png
                             (Fig. 7), comparison.md (costs as ratios to an ac-optimal run on the
@@ -79,7 +84,11 @@ def draw(runs, labels, out: Path, args) -> int:
     else:
         from trl_dgpq.analysis.figures import episode_figures
         written = episode_figures(runs, labels, out, logy_steps=not args.linear)
-    for path in written:
+    first = runs[0]
+    column, ylabel = first.domain.measure(first.env_id) if first.config else ("return", "return per episode")
+    from trl_dgpq.analysis.figures import evaluation_figure
+    evaluated = evaluation_figure(runs, labels, out, column, ylabel)
+    for path in [*written, *([evaluated] if evaluated else [])]:
         print(f"wrote {path}")
     return 0
 
