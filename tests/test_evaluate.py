@@ -107,3 +107,26 @@ def test_plot_draws_qhat_and_the_evaluation_of_an_evaluated_dgpq_run(tmp_path):
     assert plot.main([str(out), "--out", str(tmp_path / "fig")]) == 0
     for name in ("steps_per_episode.png", "time_per_step.png", "qhat.png", "eval_returns.png"):
         assert (tmp_path / "fig" / name).stat().st_size > 10_000, name
+
+
+def test_liquidation_holdings_of_the_schedules_are_their_closed_forms(tmp_path):
+    """holdings() on evaluation episodes: ac-optimal holds the AC optimum x_k (to a few shares),
+    TWAP 1 - k / N; and holdings.png is drawn for a learner beside them."""
+    import numpy as np
+
+    from trl_dgpq.commands import plot
+    from trl_dgpq.envs.liquidation.almgren_chriss import ACModel
+    from trl_dgpq.envs.liquidation.analysis import holdings
+    from trl_dgpq.envs.liquidation.env import LiquidationConfig
+    common = ["--env", "liquidation", "--seeds", "2", "--episodes", "2", "--trades", "12", "--horizon", "12"]
+    for agent in ("ac-optimal", "twap", "dgpq"):
+        assert train.main([*common, "--agent", agent, "--out", str(tmp_path / agent), "--no-progress"]) == 0
+    cfg = LiquidationConfig(trades=12, horizon=12)
+    opt = holdings(tmp_path / "ac-optimal", episodes=3)
+    assert opt.shape == (2 * 3, 13)
+    np.testing.assert_allclose(opt, np.broadcast_to(ACModel.from_config(cfg).holdings(1.0).numpy(), opt.shape),
+                               atol=3.0 / cfg.shares)  # each trade rounds to a whole share
+    np.testing.assert_allclose(holdings(tmp_path / "twap", episodes=1), [1 - np.arange(13) / 12] * 2,
+                               atol=3.0 / cfg.shares)  # each trade rounds to a whole share
+    assert plot.main([str(tmp_path / "ac-optimal"), str(tmp_path / "dgpq"), "--out", str(tmp_path / "fig")]) == 0
+    assert (tmp_path / "fig" / "holdings.png").stat().st_size > 10_000

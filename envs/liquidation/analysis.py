@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import torch
+
 from trl_dgpq.analysis import agree, paired_ratios
 from trl_dgpq.config import from_dict
 
@@ -65,7 +67,8 @@ def figures(runs, labels, out: Path, block: int = 100, last=None, title: str = "
     written = [save(fig, out / "liquidation_cost.png", title), save(tfig, out / "liquidation_time.png", title)]
     path = out / "comparison.md"
     path.write_text(comparison_table(runs, labels, last or DEFAULT_LAST))
-    return written + [path]
+    traded = holdings_figure(runs, labels, out, title=title)
+    return written + [path] + ([traded] if traded else [])
 
 
 def comparison_table(runs, labels, last: int) -> str:
@@ -88,6 +91,67 @@ def comparison_table(runs, labels, last: int) -> str:
     note = (f"\nLast {last} episodes of each run. Ratios: mean over the (seed, episode) pairs the run shares "
             "with the ac-optimal run, divided by ac-optimal's mean over the same pairs (same price paths).\n")
     return "\n".join(lines) + "\n" + note
+
+
+# ------------------------------------------------------------ what a learner trades (evaluation)
+def holdings(folder: Path, episodes: int = 10):
+    """Holdings x_0..x_N as fractions of the shares, (seeds x episodes, N + 1), of the run in
+    ``folder`` (its last checkpoint, exploration off) on evaluation episodes (streams keyed
+    apart from training's); a seed that has sold out holds 0 from then on."""
+    import numpy as np
+
+    from trl_dgpq.collectors.evaluate import Frozen, jobs, restore
+    out = []
+    for job in jobs(folder):
+        _, env, agent, _ = restore(job)
+        env.for_evaluation()
+        policy, X = Frozen(agent), float(env.cfg.shares)
+        for _ in range(episodes):
+            td = env.reset()
+            path, done = [td["shares_left"].double() / X], None
+            for _ in range(env.cfg.trades):
+                td["action"] = policy.act(td)
+                nxt = env.step(td)["next"]
+                done = nxt["done"].reshape(-1) if done is None else done | nxt["done"].reshape(-1)
+                path.append(torch.where(done, 0.0, nxt["shares_left"].double() / X))
+                td = nxt.exclude("reward", "done", "terminated", "truncated")
+                if bool(done.all()):
+                    break
+            path += [torch.zeros_like(path[0])] * (env.cfg.trades + 1 - len(path))
+            out.append(torch.stack(path, 1).numpy())
+    return np.concatenate(out)
+
+
+def holdings_figure(runs, labels, out: Path, episodes: int = 10, title: str = ""):
+    """holdings.png: each learner's holdings over the trades (median and IQR over seeds and
+    evaluation episodes, ``holdings``) beside the AC optimum and TWAP; None if no run has a
+    checkpoint."""
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from trl_dgpq.analysis.figures import save
+    model = ACModel.from_config(from_dict(LiquidationConfig, runs[0].config["env"]))
+    k = np.arange(model.trades + 1)
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    drawn = 0
+    for run, label in zip(runs, labels):
+        if run.agent in ("ac-optimal", "twap") or not any(run.path.glob("**/checkpoint.pt")):
+            continue
+        h = holdings(run.path, episodes)
+        line, = ax.plot(k, np.median(h, 0), lw=1.4, label=f"{label} ({h.shape[0]} evaluation episodes)")
+        ax.fill_between(k, *np.quantile(h, [0.25, 0.75], axis=0), color=line.get_color(), alpha=0.2, lw=0)
+        drawn += 1
+    if not drawn:
+        plt.close(fig)
+        return None
+    ax.plot(k, model.holdings(1.0).numpy(), "k--", lw=1.2, label="Almgren-Chriss optimum")
+    ax.plot(k, 1 - k / model.trades, ":", color="0.4", lw=1.2, label="TWAP")
+    ax.set_xlabel("trade k")
+    ax.set_ylabel("holdings x_k / X (median; band: IQR)")
+    ax.set_title("what each learner sells, exploration off", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    return save(fig, out / "holdings.png", title)
 
 
 # ------------------------------------------------------------ the reproduction (scripts/reproduce.py)

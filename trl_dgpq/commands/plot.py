@@ -19,7 +19,9 @@ figures of its own get those instead of the two above (``figures`` in
     liquidation             liquidation_cost.png (mean shortfall and ac_cost per block of
                             episodes against the AC optimum, seed report Fig. 6), liquidation_time.png
                             (Fig. 7), comparison.md (costs as ratios to an ac-optimal run on the
-                            same (seed, episode) price paths, over the last --last episodes)
+                            same (seed, episode) price paths, over the last --last episodes),
+                            holdings.png (each learner's holdings x_k on 10 evaluation episodes
+                            per seed, from its checkpoint, beside the AC optimum and TWAP)
     push                    push.png (the block's final distance to the goal and the success rate
                             per episode, Fig. 5), push.md (success, steps, fall-offs over the last
                             --last episodes)
