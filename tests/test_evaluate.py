@@ -1,6 +1,8 @@
 """evaluate: a run's checkpoint, exploration and learning off, on episodes training never met."""
 import hashlib
 
+import numpy as np
+
 import pandas as pd
 import pytest
 import torch
@@ -112,7 +114,6 @@ def test_plot_draws_qhat_and_the_evaluation_of_an_evaluated_dgpq_run(tmp_path):
 def test_liquidation_holdings_of_the_schedules_are_their_closed_forms(tmp_path):
     """holdings() on evaluation episodes: ac-optimal holds the AC optimum x_k (to a few shares),
     TWAP 1 - k / N; and holdings.png is drawn for a learner beside them."""
-    import numpy as np
 
     from trl_dgpq.commands import plot
     from trl_dgpq.envs.liquidation.almgren_chriss import ACModel
@@ -130,3 +131,17 @@ def test_liquidation_holdings_of_the_schedules_are_their_closed_forms(tmp_path):
                                atol=3.0 / cfg.shares)  # each trade rounds to a whole share
     assert plot.main([str(tmp_path / "ac-optimal"), str(tmp_path / "dgpq"), "--out", str(tmp_path / "fig")]) == 0
     assert (tmp_path / "fig" / "holdings.png").stat().st_size > 10_000
+
+
+def test_push_animation_shows_the_learner_and_the_oracle_side_by_side(tmp_path):
+    from PIL import Image
+
+    from trl_dgpq.envs.push.analysis import CAMERA, animation, camera, pixel
+    view, projection = camera(240, 180)
+    assert pixel(CAMERA["target"], view, projection, 240, 180) == pytest.approx((120.0, 90.0))  # the centre
+    out = trained(tmp_path, "--env", "push", "--seeds", "1", "--episodes", "1", "--max-steps", "6")
+    gif = Image.open(animation(out, tmp_path))
+    assert gif.size == (480, 180) and 2 <= gif.n_frames <= 7          # at most 6 steps, plus the start
+    gif.seek(gif.n_frames - 1)
+    left, right = np.asarray(gif.convert("RGB"))[:, :240], np.asarray(gif.convert("RGB"))[:, 240:]
+    assert left.std() > 10 and right.std() > 10                        # both rendered, not blank

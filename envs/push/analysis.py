@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from trl_dgpq.analysis import Threshold, kernel_fits_per_seed, ms_per_seed_step
 
 MEASURE = ("steps", "steps per episode")
@@ -36,7 +38,9 @@ def figures(runs, labels, out: Path, last=None, title: str = "", **_) -> list:
         ax.set_title(title, fontsize=9)
     written = save(fig, out / "push.png")
     (out / "push.md").write_text(table(runs, labels, last or DEFAULT_LAST))
-    return [written, out / "push.md"]
+    learner = next((r for r in runs if r.config and r.agent != "oracle" and any(r.path.glob("**/checkpoint.pt"))),
+                   None)
+    return [written, out / "push.md"] + ([animation(learner.path, out)] if learner else [])
 
 
 def table(runs, labels, last: int) -> str:
@@ -82,3 +86,84 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
                    "length.") + " GWH14 had no robot experiment.")
     return (f"## Block pushing (seed report 4.3) -- Figure 5\n\n{label}\n\n" + (out / "push" / "push.md").read_text()
             + "\n" + sentence + "\n\n![push](push/push.png)\n")
+
+
+# ------------------------------------------------------------ an evaluation episode, animated
+CAMERA = dict(distance=1.5, yaw=90.0, pitch=-50.0, target=(0.0, 0.0, 0.62))  # the table from its near end
+
+
+def camera(width: int, height: int):
+    """pybullet's (view, projection) matrices of CAMERA, column-major 4x4 lists."""
+    from .env import _load_pybullet
+    _load_pybullet()
+    from .env import pb
+    view = pb.computeViewMatrixFromYawPitchRoll(CAMERA["target"], CAMERA["distance"], CAMERA["yaw"],
+                                                CAMERA["pitch"], 0.0, 2)
+    return view, pb.computeProjectionMatrixFOV(60.0, width / height, 0.05, 5.0)
+
+
+def pixel(xyz, view, projection, width: int, height: int):
+    """Where a world point lands in the image: (column, row)."""
+    v, p = (np.array(m).reshape(4, 4).T for m in (view, projection))  # pybullet's are column-major
+    clip = p @ v @ np.array([*xyz, 1.0])
+    x, y = clip[:2] / clip[3]
+    return (x + 1) / 2 * width, (1 - y) / 2 * height
+
+
+def frame(env, row: int, width: int, height: int) -> np.ndarray:
+    """Seed row ``row``'s world as RGB (height, width, 3), by pybullet's TinyRenderer (no display)."""
+    from .env import pb
+    view, projection = camera(width, height)
+    _, _, rgba, _, _ = pb.getCameraImage(width, height, view, projection, renderer=pb.ER_TINY_RENDERER,
+                                         physicsClientId=env.worlds[row].client)
+    return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[..., :3]
+
+
+def episode_frames(env, policy, row: int = 0, width: int = 240, height: int = 180) -> list:
+    """Frames of seed row ``row``'s next episode under ``policy`` (td -> actions)."""
+    td = env.reset()
+    frames = [frame(env, row, width, height)]
+    while True:
+        td["action"] = policy(td)
+        td = env.step(td)["next"]
+        frames.append(frame(env, row, width, height))
+        if bool(td["done"][row]):
+            return frames
+        td = td.exclude("reward", "done", "terminated", "truncated")
+
+
+def animation(folder: Path, out: Path, width: int = 240, height: int = 180) -> Path:
+    """push.gif: the first seed's first evaluation episode of the learner in ``folder`` (its
+    last checkpoint, exploration off) beside the scripted oracle's on the same episode; the
+    goal marked in red."""
+    from PIL import Image, ImageDraw
+
+    from trl_dgpq.agents import agent_class
+    from trl_dgpq.collectors.evaluate import Frozen, jobs, restore
+    config, env, agent, _ = restore(jobs(folder)[0])
+    cls = agent_class("oracle", config["run"]["env"])
+    oracle = cls.make(cls.Config(), env.info, list(config["run"]["seeds"]))
+    clips = []
+    for name, policy in ((config["run"]["agent"], Frozen(agent).act), ("oracle", oracle.act)):
+        env.for_evaluation()  # re-keyed: both play the same first evaluation episode
+        clips.append((name, episode_frames(env, policy, 0, width, height)))
+    view, projection = camera(width, height)
+    gx, gy = pixel((*env.cfg.goal, 0.625), view, projection, width, height)
+    n = max(len(f) for _, f in clips)
+    images = []
+    for k in range(n):
+        panels = []
+        for name, frames in clips:
+            img = Image.fromarray(frames[min(k, len(frames) - 1)])
+            draw = ImageDraw.Draw(img)
+            draw.ellipse((gx - 5, gy - 5, gx + 5, gy + 5), outline=(220, 0, 0), width=2)
+            done = " (done)" if k >= len(frames) - 1 else ""
+            draw.text((4, 4), f"{name}: step {min(k, len(frames) - 1)}{done}", fill=(0, 0, 0))
+            panels.append(img)
+        both = Image.new("RGB", (width * len(panels), height), "white")
+        for i, img in enumerate(panels):
+            both.paste(img, (i * width, 0))
+        images.append(both)
+    path = out / "push.gif"
+    images[0].save(path, save_all=True, append_images=images[1:], duration=120, loop=0)
+    return path
