@@ -291,12 +291,16 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
     todo = [j for j in jobs if not runner.RunFolder(j.folder).finished()]
     report = {j.name: dict(status="finished", seeds=j.seeds, note="finished before") for j in jobs if j not in todo}
     t0, done = time.perf_counter(), [0]
+    names = {j.name for j in todo}
 
     def on_done(job: Job, result: dict) -> None:
         done[0] += 1
         report[job.name] = dict(**result, seeds=job.seeds, experiment=job.experiment, job=job.index,
                                 elapsed_s=round(time.perf_counter() - t0, 2))
-        line = f"[{done[0]}/{len(todo)}] {job.name}: {result['status']}"
+        failed = sum(r["status"] != "finished" for name, r in report.items() if name in names)
+        left = len(todo) - done[0]
+        line = (f"[{done[0]}/{len(todo)} jobs done, {failed} not finished, {left} to go; "
+                f"{(time.perf_counter() - t0) / 60:.1f} min] {job.name}: {result['status']}")
         log(line + (f" -- {result['reason']}" if result.get("reason") else ""))
         runner.RunFolder(out).write_json(REPORT, report)
 

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from trl_dgpq.collectors import runner, sweep
-from trl_dgpq.collectors.experiment import TIMING_COLUMNS
+from trl_dgpq.collectors.experiment import TIMING_COLUMNS, resolve_config
 from trl_dgpq.commands import reproduce
 from trl_dgpq.commands import sweep as sweep_script
 
@@ -196,3 +196,16 @@ def test_reproduce_only_plans_the_named_domains():
     assert f16["f16-dgpq-lq10"]["agent"]["lipschitz"] == 10.0 and f16["f16-nothing"]["agent"]["action"] == "hold"
     with pytest.raises(SystemExit):  # an unknown domain: argparse's one line, exit 2
         reproduce.main(["--only", "nowhere"])
+
+
+def test_each_finished_job_reports_how_many_are_done_failed_and_to_go(tmp_path):
+    experiments = {"a": resolve_config(env="corridor", agent="constant", seeds=[0, 1], episodes=1),
+                   "b": resolve_config(env="corridor", agent="constant", seeds=[2], episodes=1)}
+    jobs = sweep.plan(experiments, tmp_path / "s", 1)
+    sweep.create(tmp_path / "s", experiments, jobs)
+    lines = []
+    report = sweep.execute(tmp_path / "s", jobs, "local", 1, log=lines.append)
+    assert all(r["status"] == "finished" for r in report.values())
+    progress = [line for line in lines if "jobs done" in line]
+    assert [line.split(";")[0] for line in progress] == [f"[{k}/3 jobs done, 0 not finished, {3 - k} to go"
+                                                        for k in (1, 2, 3)]
