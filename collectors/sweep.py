@@ -35,6 +35,7 @@ from typing import Callable, Dict, List, Optional
 
 import pandas as pd
 
+from trl_dgpq.analysis import count
 from trl_dgpq.config import leaves
 
 from . import runner
@@ -343,7 +344,7 @@ def exit_code(report: dict, rerun: str) -> int:
 def describe_jobs(jobs: List[Job]) -> str:
     names = dict.fromkeys(j.experiment for j in jobs)
     return "; ".join(f"{n}: {describe(next(j.config for j in jobs if j.experiment == n))}, "
-                     f"{sum(len(j.seeds) for j in jobs if j.experiment == n)} seeds in "
-                     f"{sum(j.experiment == n for j in jobs)} jobs" for n in names)
+                     f"{count(sum(len(j.seeds) for j in jobs if j.experiment == n), 'seed')} in "
+                     f"{count(sum(j.experiment == n for j in jobs), 'job')}" for n in names)
 
 

@@ -99,3 +99,8 @@ def test_the_progress_of_a_budget_counts_each_seeds_steps_up_to_it():
     c = OnlineCollector(CorridorEnv([0, 1]), None, episodes=5, progress=False)
     c.episode = torch.tensor([2, 3])
     assert c._progress() == 5
+
+
+def test_counts_are_singular_for_one():
+    from trl_dgpq.analysis import count
+    assert [count(1, "seed"), count(2, "seed"), count(1000, "episode")] == ["1 seed", "2 seeds", "1,000 episodes"]

@@ -1,4 +1,4 @@
-"""Compare learners by the environment steps they needed (issue 11).
+"""Compare learners by the environment steps they needed.
 
     python scripts/report.py RUN [RUN ...] [--labels A B ...] [--budget N] [--out DIR]
 

@@ -1,6 +1,6 @@
 """Reproduce every experiment of the seed report as one sweep, then its figures and REPORT.md.
 
-    python scripts/reproduce.py                    # --scale quick: ~10 minutes on 2 cores
+    python scripts/reproduce.py                    # --scale quick (README "Reproducing the seed report": times)
     python scripts/reproduce.py --scale full       # 1,000 liquidation episodes, 100 on the square and push
     python scripts/reproduce.py --scale report     # the seed report's own lengths: liquidation 11,000
                                                    # episodes, DDPG at gamma 0.01 too (many hours: run it
@@ -25,7 +25,7 @@ import sys
 import time
 from pathlib import Path
 
-from trl_dgpq.analysis import load_run
+from trl_dgpq.analysis import count, load_run
 from trl_dgpq.collectors import runner, sweep
 from trl_dgpq.collectors.experiment import resolve_config
 from trl_dgpq.commands import prog
@@ -55,9 +55,10 @@ def experiments(scale: str, only=None) -> dict:
 
 
 def scale_label(scale: str, only=None) -> str:
-    note = ("fewer seeds and episodes than the seed report (a smoke-sized reproduction; numbers are noisier)"
+    note = (f"fewer seeds and episodes than the seed report (the {scale} scale; numbers are noisier)"
             if scale not in ("full", "report") else "the seed report's lengths")
-    sizes = [f"{d.name} {a.SCALES[scale][0]} seeds x {a.SCALES[scale][1]} episodes" for d, a in reproductions(only)]
+    sizes = [f"{d.name} {count(a.SCALES[scale][0], 'seed')} x {count(a.SCALES[scale][1], 'episode')}"
+             for d, a in reproductions(only)]
     return f"*Scale: {scale}* -- {note}: " + ", ".join(sizes) + " (some agents fewer: see the tables)."
 
 

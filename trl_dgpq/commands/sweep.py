@@ -2,8 +2,8 @@
 """Run a sweep: the experiments of a TOML file, their seeds split into jobs, on a pool
 of worker processes here (default) or on a Ray cluster.
 
-    python scripts/sweep.py configs/throughput.toml --out runs/sweep --workers 2 --seeds-per-job 8
-    python scripts/sweep.py configs/throughput.toml --out runs/sweep --backend ray [--ray-address HOST:PORT]
+    python scripts/sweep.py configs/throughput-square.toml --out runs/sweep --workers 2 --seeds-per-job 8
+    python scripts/sweep.py configs/throughput-square.toml --out runs/sweep --backend ray [--ray-address HOST:PORT]
     python scripts/sweep.py --resume runs/sweep          # rerun what has not finished
 
 The file's format is in ``collectors/sweep.py`` (``read_sweep_file``); every

@@ -25,7 +25,7 @@ import json
 import re
 import sys
 
-from trl_dgpq.analysis import ms_per_seed_step
+from trl_dgpq.analysis import count, ms_per_seed_step
 from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import cli_owners, describe, quiet_torchrl, resolve_config
 from trl_dgpq.commands import prog
@@ -89,7 +89,7 @@ def make_parser() -> argparse.ArgumentParser:
 def length(run: dict) -> str:
     """What each seed runs: "50 episodes", or "20,000 env steps" (and the episode cap if it binds)."""
     if not run.get("env_steps"):
-        return f"{run['episodes']:,} episodes"
+        return count(run["episodes"], "episode")
     cap = f" (at most {run['episodes']:,} episodes)" if run["episodes"] < run["env_steps"] else ""
     return f"{run['env_steps']:,} env steps{cap}"
 
@@ -156,7 +156,7 @@ def _main(argv=None) -> int:
             runner.check_memory(config)
             run = config["run"]
             folder = runner.RunFolder.create(args.out, describe(config).replace("/", "-"), args.overwrite)
-            print(f"{describe(config)}: {len(run['seeds'])} seeds x {length(run)} -> {folder.path}")
+            print(f"{describe(config)}: {count(len(run['seeds']), 'seed')} x {length(run)} -> {folder.path}")
             df = runner.start(config, folder, progress=not args.no_progress)
     except runner.Interrupted as stop:
         print(f"{stop} after {stop.episodes_done} episodes; checkpoint saved. "
