@@ -104,3 +104,12 @@ def test_the_progress_of_a_budget_counts_each_seeds_steps_up_to_it():
 def test_counts_are_singular_for_one():
     from trl_dgpq.analysis import count
     assert [count(1, "seed"), count(2, "seed"), count(1000, "episode")] == ["1 seed", "2 seeds", "1,000 episodes"]
+
+
+def test_the_readme_library_example_runs(capsys):
+    from pathlib import Path
+    text = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    code = text.split("<!-- library-example -->\n```python\n", 1)[1].split("```", 1)[0]
+    exec(compile(code, "README.md", "exec"), {})
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("tensor([") and len(out) == 4 and out[-1].endswith("dtype=torch.float64)")
