@@ -113,3 +113,17 @@ def test_the_readme_library_example_runs(capsys):
     exec(compile(code, "README.md", "exec"), {})
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("tensor([") and len(out) == 4 and out[-1].endswith("dtype=torch.float64)")
+
+
+def test_help_is_grouped_by_owner_and_presets_can_be_listed(capsys):
+    with pytest.raises(SystemExit):
+        train.main(["--help"])
+    text = capsys.readouterr().out
+    for section in ("run settings:", "DGPQ settings:", "DQN settings:", "F16 settings:", "Square settings:",
+                    "settings of several envs or agents"):
+        assert section in text, section
+    dqn = text.split("DQN settings:")[1].split("settings:")[0]
+    assert "--hidden" in dqn and "--lipschitz" not in dqn      # a flag is listed under its owner
+    assert train.main(["--list-presets"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(line.split() == ["f16", "dgpq", "default", "(default),", "gamma99,", "lq10"] for line in lines)

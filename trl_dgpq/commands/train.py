@@ -32,7 +32,7 @@ from trl_dgpq.commands import prog
 from trl_dgpq.config import describe_default
 from trl_dgpq.envs import domain, split_name
 
-PROCESS_FLAGS = ("out", "resume", "overwrite", "config", "set", "no_progress", "print_config", "yes")
+PROCESS_FLAGS = ("out", "resume", "overwrite", "config", "set", "no_progress", "print_config", "yes", "list_presets")
 
 
 class Parser(argparse.ArgumentParser):
@@ -53,6 +53,25 @@ def confirm_many(n: int, yes: bool) -> None:
     raise ValueError(f"{question}: not confirmed; add --yes to run that many")
 
 
+def section_name(config_class: str) -> str:
+    """"DGPQConfig" -> "DGPQ", "RunConfig" -> "run": the --help section of a config's flags."""
+    name = config_class.removesuffix("Config")
+    return "run" if name == "Run" else name
+
+
+def list_presets() -> str:
+    """Every (env, agent) with presets: their names, the env's default first."""
+    from trl_dgpq.envs import domains
+    lines = []
+    for d in domains():
+        for env, agent, table in d.preset_tables():
+            default = d.default_preset(env.partition(":")[2] or None)
+            names = sorted(table, key=lambda n: (n != default, n))
+            lines.append(f"{env:<22} {agent:<12} " + ", ".join(f"{n} (default)" if n == default else n
+                                                                 for n in names))
+    return "\n".join(lines)
+
+
 def make_parser() -> argparse.ArgumentParser:
     p = Parser(prog=prog("train"), description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default=None, help="run folder (default runs/<env>-<agent>-<preset>-<time>); "
@@ -67,8 +86,16 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--print-config", action="store_true",
                    help="print the resolved config (presets and flags applied) as JSON and exit; runs nothing")
     p.add_argument("--yes", action="store_true", help=f"run more than {MANY_SEEDS} seeds without asking")
-    g = p.add_argument_group("settings (generated from the config dataclasses; default in brackets)")
+    p.add_argument("--list-presets", action="store_true", help="list every env's presets for each agent and exit")
+    groups = {}
     for key, owners in cli_owners().items():
+        title = (f"{section_name(owners[0][0])} settings" if len(owners) == 1
+                 else "settings of several envs or agents (each one's default)")
+        if title not in groups:
+            groups[title] = p.add_argument_group(
+                title, "defaults in brackets are the dataclasses'; a preset may change them: --print-config "
+                       "shows what applies" if title.startswith("run") else None)
+        g = groups[title]
         flag = "--" + key.replace("_", "-")
         leaf = owners[0][1]
         if len(owners) == 1:
@@ -131,6 +158,9 @@ def _main(argv=None) -> int:
     parser = make_parser()
     args = parser.parse_args(attach_negative_lists(sys.argv[1:] if argv is None else list(argv)))
     settings = given_settings(args, parser)
+    if args.list_presets:
+        print(list_presets())
+        return 0
     try:
         if args.resume:
             if settings or args.config or args.out or args.overwrite:
