@@ -202,8 +202,12 @@ def test_liquidation_figures_and_table_pair_runs_by_seed_and_episode(tmp_path):
     expected = sum(t.values()) / sum(o.values())
     rows = {line.split("|")[1].strip(): line.split("|") for line in
             (tmp_path / "fig" / "comparison.md").read_text().splitlines() if line.startswith("| ")}
-    assert rows["opt"][5].strip() == "1.000"
-    assert float(rows["twap"][5]) == pytest.approx(expected, abs=5e-4)
+    assert rows["opt"][4].strip() == "all"   # 3 episodes: not "the last 1000"
+    assert rows["opt"][6].strip() == "1.000"
+    assert float(rows["twap"][6]) == pytest.approx(expected, abs=5e-4)
+    assert plot.main([str(tmp_path / "opt"), "--out", str(tmp_path / "fig2"), "--last", "2"]) == 0
+    assert "| opt 2 | last 2 |" not in (tmp_path / "fig2" / "comparison.md").read_text()  # labels are agent names
+    assert "| last 2 |" in (tmp_path / "fig2" / "comparison.md").read_text()
 
 
 def test_a_negative_comma_list_is_a_flag_value(tmp_path):

@@ -25,6 +25,13 @@ def summary(df) -> list:
             f"mean implementation shortfall ${last.implementation_shortfall.mean():,.0f}"]
 
 
+def panel_title(gamma, panels: int, schedules: bool) -> str:
+    """Learners by their discount; agents without one (the schedules) are drawn in every panel."""
+    if gamma is None:
+        return ""
+    return f"learners with gamma = {gamma:g}" + (" (schedules in each panel)" if panels > 1 and schedules else "")
+
+
 def figures(runs, labels, out: Path, block: int = 100, last=None, title: str = "", **_) -> list:
     """liquidation_cost.png (mean shortfall and ac_cost per block of episodes, a panel per
     discount, the optimum's E* and U* as lines), liquidation_time.png (wall time per
@@ -34,6 +41,7 @@ def figures(runs, labels, out: Path, block: int = 100, last=None, title: str = "
     from trl_dgpq.analysis.figures import save
     model = ACModel.from_config(from_dict(LiquidationConfig, runs[0].config["env"]))
     gammas = sorted({r.gamma for r in runs if r.gamma is not None}) or [None]
+    schedules = any(r.gamma is None for r in runs)
     panels = [("implementation_shortfall", "mean implementation shortfall ($)", model.expected_shortfall(), "E*"),
               ("ac_cost", "mean ac_cost = shortfall + risk term ($)", model.utility(), "U*")]
     fig, axes = plt.subplots(2, len(gammas), figsize=(5.2 * len(gammas), 7.0), squeeze=False, sharex=True)
@@ -43,22 +51,24 @@ def figures(runs, labels, out: Path, block: int = 100, last=None, title: str = "
             if run.gamma not in (None, gamma):
                 continue
             df = run.df
-            blk = (df["episode"] - 1) // block
-            x = (blk.groupby(blk).first() + 1) * block
+            b = min(block, int(df["episode"].max()))  # a run shorter than a block still draws a point
+            blk = (df["episode"] - 1) // b
+            x = (blk.groupby(blk).first() + 1) * b
+            style = dict(lw=1.2, marker="o" if blk.nunique() < 3 else None, ms=3)
             for row, (col, *_) in enumerate(panels):
-                axes[row, j].plot(x, df[col].groupby(blk).mean(), label=label, lw=1.2)
-            taxes[0, j].plot(x, df["wall_s"].groupby(blk).mean() * 1e3, label=label, lw=1.2)
+                axes[row, j].plot(x, df[col].groupby(blk).mean(), label=label, **style)
+            taxes[0, j].plot(x, df["wall_s"].groupby(blk).mean() * 1e3, label=label, **style)
         for row, (col, ylabel, ref, name) in enumerate(panels):
             ax = axes[row, j]
             ax.axhline(ref, color="k", ls="--", lw=1, label=f"AC optimum {name} = ${ref:,.0f}")
             ax.set_yscale("log")
             ax.set_ylabel(ylabel)
             ax.grid(alpha=0.3, which="both")
-            ax.set_title(f"gamma = {gamma}" if gamma is not None else "")
-        axes[1, j].set_xlabel(f"episode (mean of each block of {block})")
-        axes[0, j].legend(fontsize=7)
+            ax.set_title(panel_title(gamma, len(gammas), schedules), fontsize=9)
+            ax.legend(fontsize=7)
+        axes[1, j].set_xlabel(f"episode (mean of each block of up to {block})")
         tax = taxes[0, j]
-        tax.set_title(f"gamma = {gamma}" if gamma is not None else "")
+        tax.set_title(panel_title(gamma, len(gammas), schedules), fontsize=9)
         tax.set_xlabel("episode")
         tax.set_ylabel("wall ms per episode, per seed")
         tax.set_yscale("log")
@@ -75,20 +85,23 @@ def comparison_table(runs, labels, last: int) -> str:
     """Markdown: the last ``last`` episodes of each run, costs as ratios to the ac-optimal run
     on the same (seed, episode) pairs (common random numbers make the pairs comparable)."""
     ref = next((r.df for r in runs if r.agent == "ac-optimal"), None)
-    lines = ["| run | gamma | seeds x episodes | mean ac_cost ($) | ac_cost / optimum | mean shortfall ($) "
-             "| shortfall / optimum | s per episode per seed |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["| run | gamma | seeds x episodes | episodes used | mean ac_cost ($) | ac_cost / optimum "
+             "| mean shortfall ($) | shortfall / optimum | s per episode per seed |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for run, label in zip(runs, labels):
         df = run.df
         tail = df[df["episode"] > df["episode"].max() - last]
+        used = f"last {tail.episode.nunique()}" if tail.episode.nunique() < df.episode.max() else "all"
         ratios = ["–", "–"]
         if ref is not None:
             found = paired_ratios(tail, ref, ("ac_cost", "implementation_shortfall"))
             ratios = ratios if found is None else [f"{r:.3f}" for r in found]
         gamma = "–" if run.gamma is None else f"{run.gamma:g}"
-        lines.append(f"| {label} | {gamma} | {df.seed.nunique()} x {df.episode.max()} | {tail.ac_cost.mean():,.0f} "
+        lines.append(f"| {label} | {gamma} | {df.seed.nunique()} x {df.episode.max()} | {used} "
+                     f"| {tail.ac_cost.mean():,.0f} "
                      f"| {ratios[0]} | {tail.implementation_shortfall.mean():,.0f} | {ratios[1]} "
                      f"| {df.wall_s.mean():.3g} |")
-    note = (f"\nLast {last} episodes of each run. Ratios: mean over the (seed, episode) pairs the run shares "
+    note = (f"\nEach run's last {last} episodes, or all it has. Ratios: mean over the (seed, episode) pairs it shares "
             "with the ac-optimal run, divided by ac-optimal's mean over the same pairs (same price paths).\n")
     return "\n".join(lines) + "\n" + note
 
