@@ -9,6 +9,11 @@ def prog(name: str) -> str:
     return f"{ENTRY} {name}" if ENTRY else f"{name}.py"
 
 
+def command(name: str) -> str:
+    """How to run command ``name`` the way this one was run, for "continue with" hints."""
+    return f"{ENTRY} {name}" if ENTRY else f"python scripts/{name}.py"
+
+
 def guarded(name: str, body) -> int:
     """``body()``'s exit code; a bad request or a file that cannot be read or written -> one
     line and 2, Ctrl-C -> one line and 130 (never a traceback for these)."""

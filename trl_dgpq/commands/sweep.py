@@ -21,7 +21,7 @@ import sys
 
 from trl_dgpq.collectors import sweep
 from trl_dgpq.collectors.experiment import quiet_torchrl
-from trl_dgpq.commands import prog
+from trl_dgpq.commands import command, prog
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -53,7 +53,7 @@ def main(argv=None) -> int:
     elif not args.file or not args.out:
         parser.error("give a sweep file and --out (or --resume OUT)")
     out = args.resume or args.out
-    rerun = f"python scripts/sweep.py --resume {out}"
+    rerun = f"{command('sweep')} --resume {out}"
 
     def body() -> int:
         if args.resume:
