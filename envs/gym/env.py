@@ -17,8 +17,11 @@ built with the same cap, so the two never disagree).
 
 Exact resume for gymnasium's classic-control and toy-text envs, whose state is plain
 Python: each seed's env (its wrappers' and the unwrapped env's attributes: physics
-state, ``np_random``, step counters) is pickled into the state dict and copied back
-attribute by attribute. Other envs (simulators holding state outside Python) run
+state, ``np_random``, step counters) goes into the state dict as plain data (numbers,
+strings, tensors, lists and dicts: ``to_plain``; ``np_random`` as its bit generator's
+state) and is copied back attribute by attribute -- never a pickle, so a checkpoint
+from elsewhere cannot run code when it is loaded. Spaces and the env's spec do not
+change as it runs and are not saved. Other envs (simulators holding state outside Python) run
 and write checkpoints without it, and a resume from one is refused with a clear
 error. An env's own cap (truncation before ``max_steps``) ends the episode as ours does.
 """
@@ -27,7 +30,6 @@ from __future__ import annotations
 import functools
 import importlib
 import math
-import pickle
 from dataclasses import dataclass, replace
 from typing import Tuple
 
@@ -45,7 +47,7 @@ from ..base import SeedBatchedEnv
 
 # the block-push id in gymnasium's "module:id" form (gymnasium imports the module, which registers it)
 PUSH_GYM_ID = "trl_dgpq.envs.push.gym_adapter:trl_dgpq/BlockPush-v0"
-# envs whose whole state is plain Python attributes, so a pickle of them is exact
+# envs whose whole state is plain Python attributes, so saving them as plain data is exact
 CHECKPOINTABLE = ("gymnasium.envs.classic_control", "gymnasium.envs.toy_text")
 
 # (low, high) of the observation where gymnasium's bounds are infinite or much wider
@@ -208,7 +210,7 @@ class GymSeedEnv(SeedBatchedEnv):
     def state_dict(self, *args, **kwargs) -> dict:
         gym = None
         if self.checkpointable:
-            gym = [pickle.dumps([_attributes(layer) for layer in _layers(env._env)]) for env in self.envs]
+            gym = [[to_plain(_attributes(layer)) for layer in _layers(env._env)] for env in self.envs]
         return {**super().state_dict(), "started": self.started.clone(), "raw": self.raw.clone(), "gym": gym}
 
     def load_state_dict(self, state: dict, strict: bool = True) -> None:
@@ -220,12 +222,16 @@ class GymSeedEnv(SeedBatchedEnv):
         self.started.copy_(state["started"])
         self.raw.copy_(state["raw"])
         for env, data in zip(self.envs, state["gym"]):
-            for layer, saved in zip(_layers(env._env), pickle.loads(data)):
-                vars(layer).update(saved)
+            layers = _layers(env._env)
+            if not isinstance(data, list) or len(data) != len(layers):
+                raise ValueError(f"gym:{self.gym_id}: the checkpoint's env state is not this env's "
+                                 f"({len(layers)} layers of plain data)")
+            for layer, saved in zip(layers, data):
+                vars(layer).update(from_plain(saved))
 
     @property
     def checkpointable(self) -> bool:
-        """Whether a seed's whole state is in its layers' attributes (pickled into checkpoints)."""
+        """Whether a seed's whole state is in its layers' attributes (saved as plain data in checkpoints)."""
         return type(self.envs[0]._env.unwrapped).__module__.startswith(CHECKPOINTABLE)
 
     def close(self, *, raise_if_closed: bool = True) -> None:
@@ -244,9 +250,64 @@ def _layers(env) -> list:
 
 
 def _attributes(layer) -> dict:
-    """A layer's own state: its attributes, without a wrapper's link to the layer inside."""
+    """A layer's own state: its attributes, without a wrapper's link to the layer inside
+    and without what never changes as it runs (its spaces and spec)."""
     inner = isinstance(layer, gymnasium.Wrapper)
-    return {k: v for k, v in vars(layer).items() if not (inner and k == "env")}
+    return {k: v for k, v in vars(layer).items()
+            if not (inner and k == "env") and not isinstance(v, STATIC)}
+
+
+STATIC = (gymnasium.spaces.Space, gymnasium.envs.registration.EnvSpec)
+BIT_GENERATORS = ("PCG64", "PCG64DXSM", "MT19937", "Philox", "SFC64")
+
+
+def to_plain(v):
+    """``v`` as plain data a ``weights_only`` checkpoint holds: numbers, strings, None,
+    tensors, lists and tagged dicts (``from_plain`` inverts it exactly)."""
+    if isinstance(v, np.generic):  # before float: np.float64 is a float
+        return {"np": v.item(), "dtype": v.dtype.str}
+    if v is None or isinstance(v, (bool, int, float, str)):
+        return v
+    if isinstance(v, np.ndarray):
+        if v.dtype.kind in "biuf":
+            return {"ndarray": torch.from_numpy(v.copy()), "dtype": v.dtype.str}
+        return {"ndarray_list": v.tolist(), "dtype": v.dtype.str, "shape": list(v.shape)}
+    if isinstance(v, np.random.Generator):
+        return {"generator": v.bit_generator.state}
+    if isinstance(v, tuple):
+        return {"tuple": [to_plain(x) for x in v]}
+    if isinstance(v, list):
+        return [to_plain(x) for x in v]
+    if isinstance(v, dict):
+        return {"items": [[to_plain(k), to_plain(x)] for k, x in v.items()]}
+    raise ValueError(f"cannot save a {type(v).__name__} as plain data")
+
+
+def from_plain(d):
+    """The value ``to_plain`` gave ``d`` for; ValueError for anything it cannot have written."""
+    if d is None or isinstance(d, (bool, int, float, str)):
+        return d
+    if isinstance(d, list):
+        return [from_plain(x) for x in d]
+    if isinstance(d, dict) and len(d) >= 1:
+        if "np" in d:
+            return np.dtype(d["dtype"]).type(d["np"])
+        if "ndarray" in d and isinstance(d["ndarray"], torch.Tensor):
+            return d["ndarray"].numpy().astype(np.dtype(d["dtype"]), copy=True)
+        if "ndarray_list" in d:
+            return np.array(d["ndarray_list"], dtype=np.dtype(d["dtype"])).reshape(d["shape"])
+        if "generator" in d:
+            name = d["generator"].get("bit_generator")
+            if name not in BIT_GENERATORS:
+                raise ValueError(f"unknown bit generator {name!r} in a checkpoint")
+            g = np.random.Generator(getattr(np.random, name)())
+            g.bit_generator.state = d["generator"]
+            return g
+        if "tuple" in d:
+            return tuple(from_plain(x) for x in d["tuple"])
+        if "items" in d:
+            return {from_plain(k): from_plain(x) for k, x in d["items"]}
+    raise ValueError(f"not plain data this code wrote: a {type(d).__name__} in a gym env's checkpoint state")
 
 
 @functools.cache
