@@ -23,7 +23,7 @@ import torch
 
 from .experiment import build, describe
 from .online import OnlineCollector, frame
-from .runner import CHECKPOINT, RunError, atomic_write
+from .runner import CHECKPOINT, RunError, RunFolder, atomic_write
 
 EVAL = "eval.csv"
 
@@ -61,11 +61,9 @@ def restore(job: Path):
     """(config, env, agent, checkpoint) of the run in ``job``: the agent as its last checkpoint
     left it, the env fresh (its training state is ``checkpoint["env"]``)."""
     config = json.loads((job / "config.json").read_text())
-    path = job / CHECKPOINT
-    try:
-        state = torch.load(path, weights_only=True)
-    except Exception as err:
-        raise RunError(f"cannot read {path}: {err}") from None
+    state = RunFolder(job).load_checkpoint()  # the previous one if the latest is damaged, saying so
+    if state is None:
+        raise RunError(f"{job} holds no checkpoint")
     env, agent = build(config)
     agent.load_state_dict(state["agent"])
     return config, env, agent, state

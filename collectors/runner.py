@@ -37,10 +37,15 @@ from .experiment import build, check_memory, describe, load_sections, use_thread
 from .online import OnlineCollector
 
 CONFIG, EPISODES, STATUS, CHECKPOINT = "config.json", "episodes.csv", "status.json", "checkpoint.pt"
-RUN_FILES = (CONFIG, EPISODES, STATUS, CHECKPOINT)
+PREVIOUS = "checkpoint.prev.pt"  # the checkpoint before the latest: where a damaged latest falls back to
+RUN_FILES = (CONFIG, EPISODES, STATUS, CHECKPOINT, PREVIOUS)
 # 2: GP state in the kernel-batch layout (gp/kernels.py) with its likelihood module; format 1
 # checkpoints are refused rather than loaded into renamed or reshaped fields
 CHECKPOINT_FORMAT = 2
+
+
+class DamagedCheckpoint(ValueError):
+    """A checkpoint file that cannot be read (cut short, corrupted, or holding more than plain data)."""
 
 
 class RunError(ValueError):
@@ -212,16 +217,43 @@ class RunFolder:
         return (self.status() or {}).get("status") == "finished"
 
     def save_checkpoint(self, state: dict) -> None:
-        atomic_write(self.file(CHECKPOINT), lambda f: torch.save(state, f))
+        """Write the checkpoint atomically; the one it replaces becomes checkpoint.prev.pt (at
+        every moment one of the two is whole)."""
+        latest = self.file(CHECKPOINT)
+        if latest.exists():
+            os.replace(latest, self.file(PREVIOUS))
+        atomic_write(latest, lambda f: torch.save(state, f))
 
-    def load_checkpoint(self) -> Optional[dict]:
-        path = self.file(CHECKPOINT)
-        if not path.exists():
+    def load_checkpoint(self, log=None) -> Optional[dict]:
+        """The latest checkpoint; if it cannot be read, the previous one, saying so through
+        ``log`` (default: stderr) in one line; None if there is none. RunError if neither
+        can be read."""
+        latest, previous = self.file(CHECKPOINT), self.file(PREVIOUS)
+        if not latest.exists() and not previous.exists():
             return None
         try:
+            return self._read_checkpoint(latest)
+        except DamagedCheckpoint as err:  # another format is not damage: no fallback
+            if not previous.exists():
+                raise RunError(str(err)) from None
+            try:
+                state = self._read_checkpoint(previous)
+            except DamagedCheckpoint as err2:
+                raise RunError(f"{err}; and {err2}") from None
+            (log or (lambda line: print(line, file=sys.stderr)))(
+                f"{err}; continuing from {previous.name} ({state['episodes_done']} episodes done)")
+            return state
+
+    def _read_checkpoint(self, path: Path) -> dict:
+        if not path.exists():
+            raise DamagedCheckpoint(f"{path} is missing")
+        try:
             state = torch.load(path, weights_only=True)
-        except Exception as err:  # a damaged file: say so in one line
-            raise RunError(f"cannot read {path}: {err}") from None
+        except Exception as err:  # a damaged file, or one holding more than plain data
+            raise DamagedCheckpoint(f"cannot read {path}: {type(err).__name__}: "
+                                    f"{str(err).splitlines()[0][:200]}") from None
+        if not isinstance(state, dict):
+            raise DamagedCheckpoint(f"cannot read {path}: it holds a {type(state).__name__}, not a checkpoint")
         if state.get("format") != CHECKPOINT_FORMAT:
             raise RunError(f"{path} has checkpoint format {state.get('format')}, this code reads {CHECKPOINT_FORMAT}: "
                            "it was written by an older version, which can resume it; or start the run again")

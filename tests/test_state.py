@@ -236,3 +236,27 @@ def test_interrupted_run_resumes_to_the_same_csv(tmp_path, stop_run_after, case,
     runner.resume(part, runner.resumable_config(part), progress=False)
     assert part.status()["status"] == "finished"
     pd.testing.assert_frame_equal(episodes(whole), episodes(part))
+
+
+def test_a_damaged_checkpoint_falls_back_to_the_previous_one_and_resumes_to_the_same_csv(tmp_path, stop_run_after,
+                                                                                          capsys):
+    config = resolve_config(seeds=[0, 1], episodes=6, checkpoint_every=1)
+    whole = runner.RunFolder.create(str(tmp_path / "whole"), "x")
+    runner.start(config, whole, progress=False)
+    part = runner.RunFolder.create(str(tmp_path / "part"), "x")
+    stop_run_after(7, "crash")                 # several checkpoints; rows past the last on disk
+    with pytest.raises(RuntimeError):
+        runner.start(config, part, progress=False)
+    latest, previous = part.file("checkpoint.pt"), part.file("checkpoint.prev.pt")
+    assert latest.exists() and previous.exists()
+    kept = torch.load(previous, weights_only=True)["episodes_done"]
+    latest.write_bytes(latest.read_bytes()[: latest.stat().st_size // 2])     # a copy cut short
+    lines = []
+    state = part.load_checkpoint(log=lines.append)
+    assert state["episodes_done"] == kept and len(lines) == 1 and "continuing from checkpoint.prev.pt" in lines[0]
+    runner.resume(part, runner.resumable_config(part), progress=False)
+    pd.testing.assert_frame_equal(episodes(whole), episodes(part))            # the CSV cut back to it, redone
+    for path in (latest, previous):
+        path.write_bytes(b"not a checkpoint")
+    with pytest.raises(runner.RunError, match="cannot read"):
+        part.load_checkpoint(log=lambda line: None)
