@@ -37,6 +37,7 @@ from .experiment import build, check_memory, describe, load_sections, use_thread
 from .online import OnlineCollector
 
 CONFIG, EPISODES, STATUS, CHECKPOINT = "config.json", "episodes.csv", "status.json", "checkpoint.pt"
+LOCK = "run.lock"  # held (an OS lock) by the one process writing the run; holds its pid
 PREVIOUS = "checkpoint.prev.pt"  # the checkpoint before the latest: where a damaged latest falls back to
 RUN_FILES = (CONFIG, EPISODES, STATUS, CHECKPOINT, PREVIOUS)
 # 2: GP state in the kernel-batch layout (gp/kernels.py) with its likelihood module; format 1
@@ -100,6 +101,39 @@ class RunFolder:
 
     def __init__(self, path):
         self.path = Path(path)
+        self._lock = None  # the file descriptor holding LOCK, while this process writes the run
+
+    # ------------------------------------------------------------ one writer
+    def acquire(self) -> None:
+        """Hold the folder for this process: an exclusive OS lock on run.lock, released by
+        ``release`` or when the process ends however it ends (so a killed run never leaves
+        it held). RunError naming the holder if another process holds it."""
+        if self._lock is not None:
+            return
+        try:
+            import fcntl
+        except ImportError:  # no flock here (Windows): status.json's pid check remains
+            return
+        self.path.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.file(LOCK), os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = os.read(fd, 32).decode(errors="replace").strip() or "another process"
+            os.close(fd)
+            raise RunError(f"{self.path} is being written by process {holder}: wait for it to end, or stop it "
+                           "first") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        self._lock = fd
+
+    def release(self) -> None:
+        if self._lock is not None:
+            os.close(self._lock)  # closing the descriptor drops the lock
+            self._lock = None
+
+    def __del__(self):
+        self.release()
 
     def file(self, name: str) -> Path:
         return self.path / name
@@ -121,13 +155,28 @@ class RunFolder:
                     path = base if k == 0 else base.with_name(f"{base.name}-{k}")
                     try:
                         path.mkdir()
-                        return cls(path)
                     except FileExistsError:
                         continue
+                    folder = cls(path)
+                    folder.acquire()
+                    return folder
                 raise RunError(f"could not create a unique run folder under {root}")
             folder = cls(out)
             if folder.path.exists() and not folder.path.is_dir():
                 raise RunError(f"--out {out} exists and is not a folder")
+            if folder.path.is_dir() and folder.file(LOCK).exists():
+                folder.acquire()  # a run still being written is never overwritten or joined
+            return cls._prepare(folder, out, overwrite)
+        except PermissionError as err:
+            raise RunError(f"cannot write the run folder: {err.strerror}: {err.filename}") from None
+        except OSError as err:
+            raise RunError(f"cannot create the run folder: {err.strerror or err}: {err.filename or out}") from None
+
+    @classmethod
+    def _prepare(cls, folder: "RunFolder", out: str, overwrite: bool) -> "RunFolder":
+        """``out`` emptied of a run (``overwrite``) or checked empty, and held; the lock is let
+        go again if it is refused."""
+        try:
             if folder.holds_run():
                 if not overwrite:
                     raise RunError(f"--out {out} holds a run: continue it with --resume {out}, "
@@ -135,17 +184,17 @@ class RunFolder:
                 for path in [folder.file(n) for n in RUN_FILES] + list(folder.path.glob("*.png")):
                     if path.exists():  # the run's files and the figures made from them
                         path.unlink()
-            elif folder.path.exists() and any(folder.path.iterdir()):
+            elif folder.path.exists() and any(p.name != LOCK for p in folder.path.iterdir()):
                 raise RunError(f"--out {out} is not empty and holds no run: choose another folder")
             folder.path.mkdir(parents=True, exist_ok=True)
+            folder.acquire()
             probe = folder.file(f".write-test-{os.getpid()}")
             probe.touch()
             probe.unlink()
             return folder
-        except PermissionError as err:
-            raise RunError(f"cannot write the run folder: {err.strerror}: {err.filename}") from None
-        except OSError as err:
-            raise RunError(f"cannot create the run folder: {err.strerror or err}: {err.filename or out}") from None
+        except BaseException:
+            folder.release()
+            raise
 
     @classmethod
     def existing(cls, path) -> "RunFolder":
@@ -154,6 +203,7 @@ class RunFolder:
             raise RunError(f"{path} holds no run to resume (no {CONFIG})")
         if not os.access(folder.path, os.W_OK):
             raise RunError(f"cannot write to {path}")
+        folder.acquire()
         return folder
 
     # ------------------------------------------------------------ files
@@ -328,6 +378,14 @@ def _alive(pid) -> bool:
 
 
 def _execute(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: bool) -> pd.DataFrame:
+    folder.acquire()  # (a no-op when create or existing already did)
+    try:
+        return _run(config, folder, checkpoint, progress)
+    finally:
+        folder.release()
+
+
+def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: bool) -> pd.DataFrame:
     run = load_sections(config)[0]  # with defaults for settings newer than a recorded config
     use_threads(config)
     env, agent = build(config)

@@ -142,6 +142,7 @@ def run_job(config: dict, folder: str) -> None:
     torch.set_num_threads(1)
     quiet_torchrl()
     path = runner.RunFolder(folder)
+    path.acquire()  # one writer per job folder, even if a job is started twice
     if path.file(runner.CONFIG).is_file():
         if path.finished():
             return

@@ -30,7 +30,7 @@ def run(*argv):
 def test_run_folder_files_status_and_provenance(tmp_path):
     out = tmp_path / "run"
     assert run("--seeds", 2, "--episodes", 3, "--out", out) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["checkpoint.pt", "config.json", "episodes.csv", "status.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["checkpoint.pt", "config.json", "episodes.csv", "run.lock", "status.json"]
     df = pd.read_csv(out / "episodes.csv")
     assert list(df.seed) == [0, 0, 0, 1, 1, 1] and list(df.episode) == [1, 2, 3] * 2
     cfg = json.loads((out / "config.json").read_text())
@@ -244,3 +244,27 @@ def test_a_checkpoint_of_another_format_is_refused_in_one_line(tmp_path, capsys)
         train.main(["--resume", str(out), "--no-progress"])
     err = capsys.readouterr().err.strip()
     assert exc.value.code == 2 and len(err.splitlines()) == 1 and "checkpoint format 1, this code reads 2" in err
+
+
+def test_a_running_run_can_be_neither_overwritten_nor_resumed_by_a_second_writer(tmp_path, capsys):
+    """A real train.py process writing OUT: --overwrite and --resume of OUT are refused in one
+    line naming it; once it is killed (SIGKILL: no clean-up), the lock is gone with it."""
+    out = tmp_path / "live"
+    proc = subprocess.Popen([sys.executable, str(TRAIN), "--seeds", "2", "--episodes", "100000", "--out", str(out),
+                             "--no-progress"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(600):
+            if (out / "status.json").exists() and '"running"' in (out / "status.json").read_text():
+                break
+            time.sleep(0.1)
+        for argv in (["--seeds", 1, "--episodes", 1, "--out", out, "--overwrite"], ["--resume", out]):
+            with pytest.raises(SystemExit) as exc:
+                run(*argv)
+            err = capsys.readouterr().err.strip()
+            assert exc.value.code == 2 and len(err.splitlines()) == 1
+            assert f"being written by process {proc.pid}" in err or f"being run by process {proc.pid}" in err
+        assert json.loads((out / "config.json").read_text())["run"]["episodes"] == 100000  # untouched
+    finally:
+        proc.kill()
+        proc.wait()
+    assert run("--seeds", 1, "--episodes", 1, "--out", out, "--overwrite") == 0
