@@ -14,6 +14,7 @@ can be shipped to another process as (config, seeds).
 from __future__ import annotations
 
 import logging
+import os
 import re
 from dataclasses import dataclass
 from typing import Any, Dict, List, Optional, Tuple
@@ -81,6 +82,9 @@ class RunConfig:
                                 "that reaches it (0: none; episodes still caps)", within="[0, inf)")
     checkpoint_every: int = setting(10, "checkpoint every K episodes per seed (0: only on interrupt and at the end)",
                                     within="[0, inf)")
+    max_memory: float = setting(0.0, "GiB this process may use: a run whose storage would grow past it (or past "
+                                     "the machine's available memory, always checked) stops first, checkpointed "
+                                     "(0: no limit of its own)", within="[0, inf)")
     threads: int = setting(1, "torch intra-op threads (README \"Threads\": 1 was fastest for every agent, seed "
                               "count and load measured but one; 2 were 2-50x slower on a loaded machine)",
                            within="[1, inf)")
@@ -212,6 +216,43 @@ def check_memory(config: dict) -> None:
     if have is not None and need > have:
         raise ValueError(f"this run needs about {need / 2**30:.3g} GiB for its agents' state at the start, "
                          f"{have / 2**30:.3g} GiB is available: fewer seeds, a smaller budget or capacity")
+
+
+def resident_bytes() -> int:
+    """This process's resident memory (Linux /proc; 0 if unknown)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+class MemoryLimit(ValueError):
+    """The agent's storage would grow past the memory it may use."""
+
+
+def memory_guard(agent, max_gib: float):
+    """A check for before each step (None for an agent whose storage never grows): raises
+    MemoryLimit, naming what would not fit and how to go on, if the next growth would."""
+    growth = getattr(agent, "growth_bytes", None)
+    if growth is None:
+        return None
+
+    def check() -> None:
+        need = growth()
+        if not need:
+            return
+        have = available_memory()
+        over = []
+        if have is not None and need > have:
+            over.append(f"{have / 2**30:.3g} GiB available")
+        if max_gib and resident_bytes() + need > max_gib * 2**30:
+            over.append(f"--max-memory {max_gib:g} GiB (this process holds {resident_bytes() / 2**30:.3g})")
+        if over:
+            raise MemoryLimit(f"the agents' storage must grow by {need / 2**30:.3g} GiB, past "
+                              f"{' and '.join(over)}; continue with fewer seeds per run, a smaller budget, the "
+                              "sparse GP (--gp sparse), or more --max-memory")
+    return check
 
 
 def describe(config: dict) -> str:

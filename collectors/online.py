@@ -50,12 +50,14 @@ class OnlineCollector:
     ACCUMULATORS = ("episode", "steps", "ret", "wall", "cpu", "active", "env_steps_done")
 
     def __init__(self, env, agent, episodes: int, max_total_steps: Optional[int] = None,
-                 progress: bool = True, desc: str = "episodes", env_steps: int = 0):
+                 progress: bool = True, desc: str = "episodes", env_steps: int = 0,
+                 before_step: Optional[Callable[[], None]] = None):
         if int(episodes) != episodes or episodes < 1:
             raise ValueError(f"episodes must be a positive integer, got {episodes}")
         if int(env_steps) != env_steps or env_steps < 0:
             raise ValueError(f"env_steps must be a non-negative integer, got {env_steps}")
         self.env, self.agent, self.episodes, self.env_steps = env, agent, int(episodes), int(env_steps)
+        self.before_step = before_step  # e.g. the memory guard: may raise before anything changes
         self.max_total_steps = max_total_steps
         self.progress, self.desc = progress, desc
         self.step_seconds: list[float] = []
@@ -93,6 +95,8 @@ class OnlineCollector:
         td = env.reset() if self.td is None else self.td
         steps_here = 0
         while self.active.any() and (self.max_total_steps is None or steps_here < self.max_total_steps):
+            if self.before_step is not None:
+                self.before_step()
             active = self.active
             t0, c0 = time.perf_counter(), time.process_time()
             td.set("action", agent.act(td))

@@ -33,7 +33,7 @@ import torch
 
 from trl_dgpq.analysis.runs import read_csv_exact
 
-from .experiment import build, check_memory, describe, load_sections, use_threads
+from .experiment import MemoryLimit, build, check_memory, describe, load_sections, memory_guard, use_threads
 from .online import OnlineCollector
 
 CONFIG, EPISODES, STATUS, CHECKPOINT = "config.json", "episodes.csv", "status.json", "checkpoint.pt"
@@ -390,7 +390,7 @@ def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: 
     use_threads(config)
     env, agent = build(config)
     collector = OnlineCollector(env, agent, run.episodes, progress=progress, desc=describe(config),
-                                env_steps=run.env_steps)
+                                env_steps=run.env_steps, before_step=memory_guard(agent, run.max_memory))
     csv_bytes = 0
     if checkpoint is not None:
         env.load_state_dict(checkpoint["env"])
@@ -420,6 +420,11 @@ def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: 
         try:
             collector.run(on_rows=folder.append_rows, after_step=after_step)
             save()
+        except MemoryLimit as err:  # raised between steps: the state is whole, so keep it
+            save()
+            folder.set_status("failed", reason=f"memory: {err}", episodes_done=collector.episodes_done)
+            raise RunError(f"{folder.path}: stopped after {collector.episodes_done} episodes, checkpointed: {err}") \
+                from None
         except BaseException as err:
             folder.set_status("failed", reason=f"{type(err).__name__}: {err}",
                               episodes_done=collector.episodes_done)

@@ -268,3 +268,34 @@ def test_a_running_run_can_be_neither_overwritten_nor_resumed_by_a_second_writer
         proc.kill()
         proc.wait()
     assert run("--seeds", 1, "--episodes", 1, "--out", out, "--overwrite") == 0
+
+
+def test_a_run_whose_storage_would_outgrow_its_memory_stops_checkpointed_in_one_line(tmp_path, capsys, monkeypatch):
+    """Q̂ starts with room for 32 pairs per action and doubles when full (4 seeds x 4 actions x 32
+    x (2 + 1) float64, 24 KiB, copied into twice that: 48 KiB). With the process's own memory taken
+    as 0, --max-memory 40 KiB stops the run before its first doubling: checkpointed (it loads),
+    marked failed with the reason, its rows kept; exit 2 and one line. 1 MiB lets it finish."""
+    from trl_dgpq.collectors import experiment
+    monkeypatch.setattr(experiment, "resident_bytes", lambda: 0)
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as exc:
+        run("--seeds", 4, "--episodes", 20, "--qhat-capacity", 32, "--max-memory", 40 / 2**20, "--out", out)
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and len(err.splitlines()) == 1 and "must grow by" in err and "--max-memory" in err
+    status = json.loads((out / "status.json").read_text())
+    assert status["status"] == "failed" and status["reason"].startswith("memory:")
+    state = RunFolder(out).load_checkpoint()
+    assert state["episodes_done"] == status["episodes_done"] == len(pd.read_csv(out / "episodes.csv")) > 0
+    assert run("--seeds", 4, "--episodes", 20, "--qhat-capacity", 32, "--max-memory", 1 / 2**10,
+               "--out", tmp_path / "roomy") == 0
+
+
+def test_storage_growth_is_estimated_by_hand():
+    from trl_dgpq.qhat import LipschitzQ
+    q = LipschitzQ(3, 2, 4, 1.0, 0.0, capacity=2)
+    assert q.growth_bytes() == 0
+    for _ in range(2):
+        q.insert(torch.rand(3, 4, dtype=torch.float64) + 10 * _, torch.zeros(3, dtype=torch.long),
+                 torch.zeros(3, dtype=torch.float64) - _, torch.ones(3, dtype=torch.bool))
+    # full: s (3 x 2 x 2 x 4) and mu (3 x 2 x 2) in float64, copied into storage twice as large
+    assert q.width == q.capacity == 2 and q.growth_bytes() == 2 * 8 * (3 * 2 * 2 * 4 + 3 * 2 * 2)

@@ -213,6 +213,11 @@ class DGPQ:
         self._features = [(obs, f)] + self._features[:1]
         return f
 
+    def growth_bytes(self) -> int:
+        """Bytes the next step's storage growth may allocate (Q̂ and an exact GP double when full;
+        the sparse GP has a fixed budget)."""
+        return self.qhat.growth_bytes() + getattr(self.gp, "growth_bytes", lambda: 0)()
+
     def act(self, td) -> torch.Tensor:
         return self.select_action(self.features(td.get("observation")))
 

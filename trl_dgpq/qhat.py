@@ -97,6 +97,13 @@ class LipschitzQ:
         self.mu[rows, a, slot] = mu
         self.width = max(w, int(slot.max()) + 1)
 
+    def growth_bytes(self) -> int:
+        """Bytes the next insert may allocate: doubling a full storage copies it into one twice
+        its size (0 while there is room)."""
+        if self.width < self.capacity:
+            return 0
+        return 2 * (self.s.numel() * self.s.element_size() + self.mu.numel() * self.mu.element_size())
+
     def _grow(self) -> None:
         pad = lambda t, fill: torch.cat((t, torch.full_like(t, fill)), 2)  # noqa: E731
         self.s, self.mu = pad(self.s, 0), pad(self.mu, torch.inf)

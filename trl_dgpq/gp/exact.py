@@ -51,6 +51,12 @@ class ExactGP(BatchedGP):
         )
 
     # ----------------------------------------------------------------- growth
+    def growth_bytes(self) -> int:
+        """Bytes the next add may allocate: a full GP doubles every buffer (0 while all have room)."""
+        if not self.n.numel() or int(self.n.max()) < self.capacity:
+            return 0
+        return 2 * sum(b.numel() * b.element_size() for b in self.buffers())
+
     def _prepare_add(self, rows) -> None:
         n = self.n if rows is None else self.n[rows]
         if n.numel() and int(n.max()) >= self.capacity:
