@@ -63,15 +63,21 @@ class Interrupted(Exception):
         return 128 + self.signum
 
 
-def atomic_write(path: Path, write) -> None:
-    """``write(file)`` into a temporary file beside ``path``, then rename it over ``path``."""
+def atomic_write(path: Path, write, before_replace=None) -> None:
+    """``write(file)`` into a temporary file beside ``path``, then rename it over ``path``
+    (``before_replace()`` runs between the two, once the new file is whole). An OSError
+    (a full disk, a file-size limit) names ``path``; ``path`` is then as it was."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         with open(tmp, "wb") as f:
             write(f)
             f.flush()
             os.fsync(f.fileno())
+        if before_replace is not None:
+            before_replace()
         os.replace(tmp, path)
+    except OSError as err:
+        raise OSError(err.errno, err.strerror or str(err), str(path)) from None
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -229,10 +235,13 @@ class RunFolder:
         """Append rows to episodes.csv (header first if new), flushed; returns its size."""
         path = self.file(EPISODES)
         new = not path.exists() or path.stat().st_size == 0
-        with open(path, "a", newline="") as f:
-            pd.DataFrame(rows).to_csv(f, header=new, index=False)
-            f.flush()
-            return f.tell()
+        try:
+            with open(path, "a", newline="") as f:
+                pd.DataFrame(rows).to_csv(f, header=new, index=False)
+                f.flush()
+                return f.tell()
+        except OSError as err:  # a part row may be on disk: past the checkpoint, cut on resume
+            raise OSError(err.errno, err.strerror or str(err), str(path)) from None
 
     def csv_size(self) -> int:
         path = self.file(EPISODES)
@@ -270,9 +279,11 @@ class RunFolder:
         """Write the checkpoint atomically; the one it replaces becomes checkpoint.prev.pt (at
         every moment one of the two is whole)."""
         latest = self.file(CHECKPOINT)
-        if latest.exists():
-            os.replace(latest, self.file(PREVIOUS))
-        atomic_write(latest, lambda f: torch.save(state, f))
+
+        def rotate():  # only once the new one is whole: a failed write leaves both as they were
+            if latest.exists():
+                os.replace(latest, self.file(PREVIOUS))
+        atomic_write(latest, lambda f: torch.save(state, f), before_replace=rotate)
 
     def load_checkpoint(self, log=None) -> Optional[dict]:
         """The latest checkpoint; if it cannot be read, the previous one, saying so through
@@ -416,8 +427,8 @@ def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: 
                 next_at = (c.episodes_done // every + 1) * every
             return False
 
-        folder.set_status("running", episodes_done=collector.episodes_done)
         try:
+            folder.set_status("running", episodes_done=collector.episodes_done)
             collector.run(on_rows=folder.append_rows, after_step=after_step)
             save()
         except MemoryLimit as err:  # raised between steps: the state is whole, so keep it
@@ -425,6 +436,13 @@ def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: 
             folder.set_status("failed", reason=f"memory: {err}", episodes_done=collector.episodes_done)
             raise RunError(f"{folder.path}: stopped after {collector.episodes_done} episodes, checkpointed: {err}") \
                 from None
+        except OSError as err:  # a full disk, a file-size limit: say where, keep what is whole
+            try:
+                folder.set_status("failed", reason=f"OSError: {err}", episodes_done=collector.episodes_done)
+            except OSError:
+                pass  # status.json cannot be written either: the message below is all there is
+            raise RunError(f"cannot write {err.filename or folder.path}: {err.strerror or err}; the rows and the "
+                           f"checkpoint written before are whole: free space, then --resume {folder.path}") from None
         except BaseException as err:
             folder.set_status("failed", reason=f"{type(err).__name__}: {err}",
                               episodes_done=collector.episodes_done)
@@ -433,6 +451,10 @@ def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: 
             name = signal.Signals(caught["signum"]).name
             folder.set_status("interrupted", reason=name, episodes_done=collector.episodes_done)
             raise Interrupted(caught["signum"], folder, collector.episodes_done)
-    df = folder.finalize_csv()
-    folder.set_status("finished", episodes_done=collector.episodes_done)
+    try:
+        df = folder.finalize_csv()
+        folder.set_status("finished", episodes_done=collector.episodes_done)
+    except OSError as err:  # every row and the final checkpoint are on disk; only the sorting failed
+        raise RunError(f"cannot write {err.filename or folder.path}: {err.strerror or err}; every episode is in "
+                       f"episodes.csv (unsorted): free space, then --resume {folder.path} to finish it") from None
     return df

@@ -299,3 +299,30 @@ def test_storage_growth_is_estimated_by_hand():
                  torch.zeros(3, dtype=torch.float64) - _, torch.ones(3, dtype=torch.bool))
     # full: s (3 x 2 x 2 x 4) and mu (3 x 2 x 2) in float64, copied into storage twice as large
     assert q.width == q.capacity == 2 and q.growth_bytes() == 2 * 8 * (3 * 2 * 2 * 4 + 3 * 2 * 2)
+
+
+@pytest.mark.parametrize("limit", [5_000, 8_000])
+def test_a_full_disk_stops_the_run_in_one_line_and_resume_finishes_the_same_csv(tmp_path, limit):
+    """A file-size limit (RLIMIT_FSIZE, SIGXFSZ ignored: writes past it fail with EFBIG, as on a
+    full disk) in a real train.py process. Checkpoints take ~5.9 kB and rows ~95 B: at 5,000 the
+    first checkpoint fails, at 8,000 the CSV does after ~80 rows. Either way: one line naming the
+    file, exit 2, status failed, the last good checkpoint (if any) loads, and with the limit gone
+    --resume ends with the rows of an uninterrupted run."""
+    import resource
+
+    def small_files():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+
+    common = ["--agent", "random", "--seeds", "2", "--episodes", "60", "--checkpoint-every", "5", "--no-progress"]
+    assert run(*common[:-1], "--out", tmp_path / "whole") == 0
+    done = subprocess.run([sys.executable, str(TRAIN), *common, "--out", str(tmp_path / "part")],
+                          capture_output=True, text=True, preexec_fn=small_files, timeout=300)
+    err = done.stderr.strip()
+    assert done.returncode == 2 and len(err.splitlines()) == 1 and "cannot write" in err and str(tmp_path) in err
+    part = RunFolder(tmp_path / "part")
+    assert part.status()["status"] == "failed"
+    state = part.load_checkpoint(log=lambda line: None)
+    assert (state is None) == (limit < 5_900) and (state is None or state["episodes_done"] < 120)
+    assert run("--resume", tmp_path / "part") == 0
+    pd.testing.assert_frame_equal(csv(tmp_path / "whole"), csv(tmp_path / "part"))
