@@ -205,11 +205,43 @@ def run_local(jobs: List[Job], workers: int, on_done: Callable[[Job, dict], None
         raise
 
 
+RAY_RETRIES = 3  # a task whose worker dies (a node lost, the OOM killer) runs again, from its checkpoint
+
+
+def writable_here(folder: str) -> Optional[str]:
+    """None if this machine can write ``folder`` (creating it), else why not: run by Ray on
+    every node before a sweep, so an --out a node cannot reach is refused up front."""
+    import socket
+    try:
+        path = Path(folder)
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / f".probe-{socket.gethostname()}-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+        return None
+    except OSError as err:
+        return f"node {socket.gethostname()} cannot write {folder}: {err.strerror or err}"
+
+
+def check_nodes(ray, out: str) -> None:
+    """SweepError (one line) if any alive Ray node cannot write ``out``."""
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+    probe = ray.remote(num_cpus=0)(writable_here)
+    refs = [probe.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node["NodeID"], soft=False)).remote(out)
+            for node in ray.nodes() if node.get("Alive")]
+    problems = [p for p in ray.get(refs) if p]
+    if problems:
+        raise SweepError(f"--out must be on storage every node reaches: {problems[0]}"
+                         + (f" (and {len(problems) - 1} more nodes)" if len(problems) > 1 else ""))
+
+
 def run_ray(jobs: List[Job], address: Optional[str], cpus_per_job: float,
             on_done: Callable[[Job, dict], None]) -> None:
-    """One Ray task per job (``num_cpus`` each, no retries: a failure is reported, and
-    ``resume`` reruns it). Outputs go to the job folders, which must be on a path every
-    node can reach."""
+    """One Ray task per job (``num_cpus`` each). A task whose worker dies is retried up to
+    RAY_RETRIES times, each retry resuming the job from its own last checkpoint; a job
+    that fails in its own code is reported, and ``resume`` reruns it. Outputs go to the
+    job folders, which must be on a path every node can reach (checked on every node
+    first)."""
     try:
         import ray
     except ImportError:
@@ -220,7 +252,8 @@ def run_ray(jobs: List[Job], address: Optional[str], cpus_per_job: float,
             ray.init(address=address, log_to_driver=False)
         else:   # a local instance, with this process's working directory and package
             ray.init(num_cpus=os.cpu_count(), include_dashboard=False, log_to_driver=False)
-    task = ray.remote(num_cpus=cpus_per_job, max_retries=0)(run_job)
+    check_nodes(ray, str(Path(jobs[0].folder).parents[2]))  # OUT (a job folder is OUT/experiment/jobs/jNNN)
+    task = ray.remote(num_cpus=cpus_per_job, max_retries=RAY_RETRIES, retry_exceptions=False)(run_job)
     refs = {task.remote(job.config, job.folder): job for job in jobs}
     while refs:
         done, _ = ray.wait(list(refs), num_returns=1)

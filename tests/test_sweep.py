@@ -209,3 +209,43 @@ def test_each_finished_job_reports_how_many_are_done_failed_and_to_go(tmp_path):
     progress = [line for line in lines if "jobs done" in line]
     assert [line.split(";")[0] for line in progress] == [f"[{k}/3 jobs done, 0 not finished, {3 - k} to go"
                                                         for k in (1, 2, 3)]
+
+
+@pytest.mark.slow
+def test_a_ray_worker_killed_mid_job_is_retried_from_its_checkpoint(tmp_path):
+    """SIGKILL the Ray worker running the only job once it is writing rows: Ray runs the task
+    again (max_retries), which resumes the job from its checkpoint; the rows equal one process's."""
+    ray = pytest.importorskip("ray")
+    text = SWEEP_FILE.split("[[experiment]]\nname = \"liq\"")[0].replace('episodes = 3', 'episodes = 60')
+    experiments = sweep.read_sweep_file(write(tmp_path, text))
+    out = tmp_path / "sw"
+    jobs = sweep.plan(experiments, out, 4)
+    sweep.create(out, experiments, jobs)
+    folder = runner.RunFolder(jobs[0].folder)
+    killed = []
+
+    def kill_the_worker():
+        for _ in range(600):
+            status = folder.status() or {}
+            if status.get("status") == "running" and folder.file("episodes.csv").exists():
+                os.kill(status["pid"], signal.SIGKILL)
+                killed.append(status["pid"])
+                return
+            time.sleep(0.05)
+    try:
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+        threading.Thread(target=kill_the_worker, daemon=True).start()
+        report = sweep.execute(out, jobs, "ray", log=lambda line: None)
+    finally:
+        ray.shutdown()
+    assert killed and all(r["status"] == "finished" for r in report.values())
+    (name, config), = experiments.items()
+    pd.testing.assert_frame_equal(rows(out / name / "episodes.csv"), one_process(config, tmp_path / "single"))
+
+
+def test_an_out_a_node_cannot_write_is_named_in_one_line(tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    reason = sweep.writable_here(str(blocker / "out"))
+    assert reason.startswith("node ") and "cannot write" in reason and str(blocker / "out") in reason
+    assert sweep.writable_here(str(tmp_path / "fine")) is None and (tmp_path / "fine").is_dir()
