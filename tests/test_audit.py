@@ -67,3 +67,15 @@ def test_the_ac_schedules_shortfall_spreads_as_the_closed_form_says():
         td = td.exclude("reward", "done", "terminated", "truncated")
     sd = math.sqrt(ACModel.from_config(LiquidationConfig()).variance())
     assert float(shortfall.std()) == pytest.approx(sd, rel=0.12)
+
+
+def test_an_experiments_own_values_win_over_the_defaults_and_defaults_set_applies(tmp_path):
+    from trl_dgpq.collectors import sweep
+    path = tmp_path / "s.toml"
+    path.write_text('[defaults]\nseeds = 2\nepisodes = 3\n[defaults.set]\nnoise_var = 0.2\nlengthscale = 0.3\n'
+                    '[[experiment]]\nname = "a"\nenv = "square"\nepisodes = 5\n[experiment.set]\nlengthscale = 0.4\n'
+                    '[[experiment]]\nname = "b"\nenv = "square"\n')
+    a, b = (sweep.read_sweep_file(path)[n] for n in ("a", "b"))
+    assert a["run"]["episodes"] == 5 and b["run"]["episodes"] == 3 and a["run"]["seeds"] == [0, 1]
+    assert a["agent"]["gp"]["noise_var"] == b["agent"]["gp"]["noise_var"] == 0.2
+    assert a["agent"]["gp"]["lengthscale"] == 0.4 and b["agent"]["gp"]["lengthscale"] == 0.3
