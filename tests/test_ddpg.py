@@ -183,3 +183,20 @@ def test_exploration_noise_restarts_each_episode():
 def test_refused_settings(settings, match):
     with pytest.raises(ValueError, match=match):
         resolve_config(agent="ddpg", **settings)
+
+
+@pytest.mark.parametrize("update", ["joint", "critic-then-actor"])
+def test_each_network_moves_by_its_own_learning_rate(update):
+    """Adam's first step moves every parameter with a gradient by lr (g / |g|, bias-corrected):
+    the actor's by actor_lr, the critic's by critic_lr (swapped rates fail this); the targets by
+    tau times that."""
+    cfg = DDPGConfig(actor_lr=2e-4, critic_lr=3e-3, target_update=0.01, update=update)
+    agent = DDPG(cfg, [0, 1], 3, BOX)
+    before = {k: v.clone() for k, v in agent.nets.state_dict().items()}
+    agent.update(batch_of(16, S=2))
+    after = agent.nets.state_dict()
+    for net, lr in (("actor", 2e-4), ("critic", 3e-3)):
+        moved = torch.cat([(after[k] - before[k]).abs().flatten() for k in before if k.startswith(net + ".")])
+        assert moved.max().item() == pytest.approx(lr, rel=1e-3), net
+        target = torch.cat([(after[k] - before[k]).abs().flatten() for k in before if k.startswith(f"target_{net}.")])
+        assert target.max().item() == pytest.approx(0.01 * lr, rel=0.03), net   # float32 differences
