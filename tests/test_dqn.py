@@ -129,3 +129,27 @@ def test_continuous_actions_are_refused():
 def test_bad_settings_are_refused(bad):
     with pytest.raises(ValueError):
         resolve_config(agent="dqn", **bad)
+
+
+@pytest.mark.parametrize("clip, moved", [(10.0, 1.0), (1e-10, 0.02)])
+def test_clipping_reaches_the_optimiser(clip, moved):
+    """Adam's first step moves a parameter by lr g / (|g| + 1e-8): lr itself for a gradient of any
+    usual size, but under 2 % of lr once the whole gradient is clipped to norm 1e-10 (each
+    element then at most 1e-10). Without clipping both would move by lr."""
+    cfg = DQNConfig(hidden=(8,), learning_starts=4, batch_size=4, train_freq=1, gradient_steps=1, lr=1e-3,
+                    max_grad_norm=clip)
+    agent = DQN(cfg, [0], 3, 2)
+    before = [p.clone() for p in agent.qnet.parameters()]
+    for _ in range(4):
+        agent.observe(transition())
+    assert int(agent.updates[0]) == 1
+    step = max(float((p - b).abs().max()) for p, b in zip(agent.qnet.parameters(), before))
+    assert step == pytest.approx(1e-3, rel=1e-3) if moved == 1.0 else step < moved * 1e-3
+
+
+def test_a_time_limit_is_stored_as_not_terminated():
+    """A truncated step (done, not terminated) must bootstrap: the replay keeps `terminated` False."""
+    agent = DQN(DQNConfig(hidden=(8,)), [0, 1], 3, 2)
+    agent.observe(transition(n=2, truncated=True))
+    stored = agent.replay.sample(4)
+    assert stored["next", "done"].all() and not stored["next", "terminated"].any()
