@@ -79,3 +79,27 @@ def test_an_experiments_own_values_win_over_the_defaults_and_defaults_set_applie
     assert a["run"]["episodes"] == 5 and b["run"]["episodes"] == 3 and a["run"]["seeds"] == [0, 1]
     assert a["agent"]["gp"]["noise_var"] == b["agent"]["gp"]["noise_var"] == 0.2
     assert a["agent"]["gp"]["lengthscale"] == 0.4 and b["agent"]["gp"]["lengthscale"] == 0.3
+
+
+def test_the_level_noise_is_an_ou_recursion_from_zero_at_each_episode():
+    """x_k = (1 - theta) x_{k-1} + sigma xi_k with x_0 = 0 at every episode's start, xi the
+    seed's own N(0, 1) draws (replayed from an independent stream with the same key)."""
+    from trl_dgpq.envs.liquidation.env import LiquidationEnv
+    from trl_dgpq.rng import ENV_STREAM, SeedStreams
+    sigma, theta, trades = 0.3, 0.15, 6
+    env = LiquidationEnv([5], action_levels=11, level_noise=sigma, level_noise_theta=theta, trades=trades,
+                         horizon=trades)
+    xi = SeedStreams([5], ENV_STREAM)
+    td = env.reset()
+    for episode in range(2):
+        x = 0.0
+        for k in range(trades):
+            td["action"] = torch.tensor([0])          # the level 0: only the noise sells
+            td = env.step(td)
+            x = (1 - theta) * x + sigma * float(xi.normal()[0])
+            assert float(env.ou[0]) == pytest.approx(x, abs=1e-12), (episode, k)
+            done = bool(td["next", "done"][0])
+            td = env.reset() if done else td["next"]
+            if done:
+                break
+        assert done
