@@ -260,3 +260,15 @@ def test_a_damaged_checkpoint_falls_back_to_the_previous_one_and_resumes_to_the_
         path.write_bytes(b"not a checkpoint")
     with pytest.raises(runner.RunError, match="cannot read"):
         part.load_checkpoint(log=lambda line: None)
+
+
+def test_a_sigint_during_the_last_step_leaves_a_finished_sorted_run(tmp_path, stop_run_after):
+    """Liquidation episodes all take 10 steps, so 2 seeds x 3 episodes end in 3 batches of 2 rows;
+    SIGINT right after the last batch: nothing is left to do, so the run is finished, its CSV
+    sorted by seed (not left "interrupted" in append order)."""
+    config = resolve_config(env="liquidation", agent="twap", seeds=[0, 1], episodes=3, trades=10, horizon=10)
+    folder = runner.RunFolder.create(str(tmp_path / "run"), "x")
+    stop_run_after(3, "signal")
+    runner.start(config, folder, progress=False)
+    assert folder.status()["status"] == "finished"
+    assert list(episodes(folder).seed) == [0, 0, 0, 1, 1, 1]
