@@ -181,8 +181,8 @@ def test_reproduce_writes_every_figure_and_the_report(tmp_path):
                     "smoke scale"):
         assert section in text
     for fig in ("square/steps_per_episode.png", "square/time_per_step.png", "square-kernels/steps_per_episode.png",
-                "push/push.png", "liquidation/liquidation_cost.png", "liquidation/liquidation_time.png", "f16/f16_reward.png",
-                "f16/f16_trace.png"):
+                "push/push.png", "push/push.gif", "liquidation/liquidation_cost.png", "liquidation/liquidation_time.png",
+                "liquidation/holdings.png", "square/qhat.png", "f16/f16_reward.png", "f16/f16_trace.png"):
         assert (out / fig).is_file(), fig
     assert reproduce.main(["--scale", "smoke", "--out", str(out)]) == 0          # again: nothing to rerun
     assert reproduce.main(["--scale", "quick", "--out", str(out)]) == 2          # another sweep's folder

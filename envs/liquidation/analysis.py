@@ -221,4 +221,6 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
     ]
     return (f"## Optimal liquidation (seed report 4.4) -- Figures 6-7\n\n{label}\n\n"
             + (out / "liquidation" / "comparison.md").read_text() + "\n" + "\n".join(sentences)
-            + "\n\n![cost](liquidation/liquidation_cost.png) ![time](liquidation/liquidation_time.png)\n")
+            + "\n\n![cost](liquidation/liquidation_cost.png) ![time](liquidation/liquidation_time.png)"
+            + (" ![holdings](liquidation/holdings.png)" if (out / "liquidation" / "holdings.png").is_file() else "")
+            + "\n")

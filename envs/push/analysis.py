@@ -85,7 +85,8 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
                 + ("DGPQ learns the task." if min(rates[:2]) >= 0.8 else "DGPQ does not learn it reliably at this "
                    "length.") + " GWH14 had no robot experiment.")
     return (f"## Block pushing (seed report 4.3) -- Figure 5\n\n{label}\n\n" + (out / "push" / "push.md").read_text()
-            + "\n" + sentence + "\n\n![push](push/push.png)\n")
+            + "\n" + sentence + "\n\n![push](push/push.png)"
+            + (" ![an evaluation episode](push/push.gif)" if (out / "push" / "push.gif").is_file() else "") + "\n")
 
 
 # ------------------------------------------------------------ an evaluation episode, animated

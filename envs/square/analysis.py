@@ -33,6 +33,7 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
     named = list(runs.values())
     episode_figures(named[:3], ["shaped", "report", "paper"], out / "square", title=title)
     episode_figures(named[3:], ["RBF (exact GP)", "manifold (exact GP)"], out / "square-kernels", title=title)
+    qhat = qhat_figure(runs["square-shaped"].path, out / "square", title) if "square-shaped" in runs else None
     rows = ["| preset | seeds x episodes | episode 1 steps (median) | episodes 3+ (median) | last 5 (median) "
             "| capped episodes | kernel fits / seed | ms per seed-step |", "|---|---|---|---|---|---|---|---|"]
     facts = {}
@@ -62,7 +63,8 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
     return (f"## Square (seed report 4.1; GWH14's first experiment) -- Figures 2-4\n\n{label}\n\n"
             + "\n".join(rows) + "\n\n" + "\n".join(sentences)
             + "\n\n![steps](square/steps_per_episode.png) ![time](square/time_per_step.png) "
-              "![kernels](square-kernels/steps_per_episode.png)\n")
+              "![kernels](square-kernels/steps_per_episode.png)"
+            + (" ![Q̂](square/qhat.png)" if qhat else "") + "\n")
 
 
 # ------------------------------------------------------------ what DGPQ learned (scripts/plot.py)
