@@ -56,6 +56,17 @@ def one_process(config, folder):
     return rows(f.file("episodes.csv"))
 
 
+def square_sweep(tmp_path, episodes: int, seeds_per_job: int):
+    """SWEEP_FILE's square experiment alone, longer, planned and created in tmp_path/sw:
+    (experiments, out, jobs)."""
+    text = SWEEP_FILE.split("[[experiment]]\nname = \"liq\"")[0].replace("episodes = 3", f"episodes = {episodes}")
+    experiments = sweep.read_sweep_file(write(tmp_path, text))
+    out = tmp_path / "sw"
+    jobs = sweep.plan(experiments, out, seeds_per_job)
+    sweep.create(out, experiments, jobs)
+    return experiments, out, jobs
+
+
 def run_sweep(tmp_path, out, backend="local", workers=2, seeds_per_job=2, text=SWEEP_FILE):
     experiments = sweep.read_sweep_file(write(tmp_path, text))
     jobs = sweep.plan(experiments, out, seeds_per_job)
@@ -93,11 +104,7 @@ def test_a_killed_job_is_reported_the_others_finish_and_resume_completes_it(tmp_
     """SIGKILL one job's process once it has written rows: it is reported as killed with its
     seeds, the other job finishes, no merged file yet; resume reruns only the killed job,
     and the merged rows equal one process's."""
-    text = SWEEP_FILE.split("[[experiment]]\nname = \"liq\"")[0].replace('episodes = 3', 'episodes = 40')
-    experiments = sweep.read_sweep_file(write(tmp_path, text))
-    out = tmp_path / "sw"
-    jobs = sweep.plan(experiments, out, 2)
-    sweep.create(out, experiments, jobs)
+    experiments, out, jobs = square_sweep(tmp_path, episodes=40, seeds_per_job=2)
     victim = runner.RunFolder(jobs[1].folder)
     killed = {}
 
@@ -216,11 +223,7 @@ def test_a_ray_worker_killed_mid_job_is_retried_from_its_checkpoint(tmp_path):
     """SIGKILL the Ray worker running the only job once it is writing rows: Ray runs the task
     again (max_retries), which resumes the job from its checkpoint; the rows equal one process's."""
     ray = pytest.importorskip("ray")
-    text = SWEEP_FILE.split("[[experiment]]\nname = \"liq\"")[0].replace('episodes = 3', 'episodes = 60')
-    experiments = sweep.read_sweep_file(write(tmp_path, text))
-    out = tmp_path / "sw"
-    jobs = sweep.plan(experiments, out, 4)
-    sweep.create(out, experiments, jobs)
+    experiments, out, jobs = square_sweep(tmp_path, episodes=60, seeds_per_job=4)
     folder = runner.RunFolder(jobs[0].folder)
     killed = []
 
