@@ -1,5 +1,6 @@
 """The suite's commands; ``scripts/<name>.py`` and ``trl-dgpq <name>`` (``trl_dgpq.__main__``)
 run ``trl_dgpq.commands.<name>.main``."""
+import sys
 
 ENTRY = None  # "trl-dgpq" when run through the console command
 
@@ -17,7 +18,6 @@ def command(name: str) -> str:
 def guarded(name: str, body) -> int:
     """``body()``'s exit code; a bad request or a file that cannot be read or written -> one
     line and 2, Ctrl-C -> one line and 130 (never a traceback for these)."""
-    import sys
     try:
         return body()
     except (ValueError, OSError) as err:

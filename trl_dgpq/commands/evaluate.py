@@ -38,9 +38,9 @@ def run(args) -> int:
         raise ValueError(f"--episodes must be positive, got {args.episodes}")
     for folder in map(Path, args.runs):
         df = evaluate(folder, args.episodes, progress=not args.no_progress)
-        run = load_run(folder)
-        column, label = run.domain.measure(run.env_id)
-        train = run.df[run.df.episode > run.df.episode.max() - args.episodes][column].mean()
+        trained = load_run(folder)
+        column, label = trained.domain.measure(trained.env_id)
+        train = trained.df[trained.df.episode > trained.df.episode.max() - args.episodes][column].mean()
         print(f"{folder}: {label}, mean over {df.seed.nunique()} seeds x {args.episodes} evaluation episodes: "
               f"{df[column].mean():.4g} (the last {args.episodes} training episodes: {train:.4g}); "
               f"wrote {folder / EVAL}")
