@@ -77,7 +77,7 @@ def atomic_write(path: Path, write, before_replace=None) -> None:
             before_replace()
         os.replace(tmp, path)
     except OSError as err:
-        raise OSError(err.errno, err.strerror or str(err), str(path)) from None
+        raise type(err)(err.errno, err.strerror or str(err), str(path)) from None
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -241,7 +241,7 @@ class RunFolder:
                 f.flush()
                 return f.tell()
         except OSError as err:  # a part row may be on disk: past the checkpoint, cut on resume
-            raise OSError(err.errno, err.strerror or str(err), str(path)) from None
+            raise type(err)(err.errno, err.strerror or str(err), str(path)) from None
 
     def csv_size(self) -> int:
         path = self.file(EPISODES)
