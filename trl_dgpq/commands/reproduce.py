@@ -41,6 +41,14 @@ def reproductions(only=None) -> list:
     return [(d, a) for d, a in found if hasattr(a, "REPRODUCE")]
 
 
+def same_run(config: dict) -> dict:
+    """A config's run section with today's defaults for settings added since it was recorded,
+    so that a sweep begun by an older version still counts as this one."""
+    from trl_dgpq.collectors.experiment import RunConfig
+    from trl_dgpq.config import from_dict, to_dict
+    return to_dict(from_dict(RunConfig, config["run"]))
+
+
 def experiments(scale: str, only=None) -> dict:
     """{experiment name: resolved config} at ``scale``."""
     out = {}
@@ -97,7 +105,7 @@ def main(argv=None) -> int:
     def body() -> int:
         if (out / sweep.SWEEP).is_file():
             recorded, jobs = sweep.load(out)
-            if {k: v["run"] for k, v in recorded.items()} != {k: v["run"] for k, v in planned.items()}:
+            if {k: same_run(v) for k, v in recorded.items()} != {k: same_run(v) for k, v in planned.items()}:
                 raise sweep.SweepError(f"{out} holds another sweep (another scale?): choose another --out")
             print(f"continuing {out}", flush=True)
         else:
