@@ -117,7 +117,7 @@ def reward_figure(runs, labels, out: Path, block: int = 10, title: str = "") -> 
 
     from trl_dgpq.analysis.figures import save
     fig, ax = plt.subplots(figsize=(7.0, 4.4))
-    scripted = []
+    scripted, marked = [], set()
     for run, label in zip(runs, labels):
         df = run.df
         if run.agent in SCRIPTED:
@@ -129,7 +129,9 @@ def reward_figure(runs, labels, out: Path, block: int = 10, title: str = "") -> 
         b = blocks(df, block)
         line, = ax.plot(b.index, b["median"], lw=1.2, label=f"{label} ({df.seed.nunique()} seeds)")
         ax.fill_between(b.index, b["q25"], b["q75"], color=line.get_color(), alpha=0.25, lw=0)
-        marks = PAPER.get(run.config["agent"].get("lipschitz")) if run.agent == "dgpq" else None
+        lipschitz = run.config["agent"].get("lipschitz") if run.agent == "dgpq" else None
+        marks = PAPER.get(lipschitz) if lipschitz not in marked else None  # once per L_Q, in its first run's colour
+        marked.add(lipschitz)
         if marks:
             (e0, r0), (e1, r1) = marks
             ax.plot([e0], [r0], "x", color=line.get_color(), ms=8)
