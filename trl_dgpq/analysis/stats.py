@@ -2,8 +2,8 @@
 ``rliable`` library: the interquartile mean (IQM) with a 95 % stratified bootstrap
 confidence interval, the probability of improvement, and performance profiles.
 
-Bootstraps use a fixed ``numpy`` RandomState, so a report is the same every time it is
-drawn. Scores are "higher is better" where a comparison needs a direction: a domain
+Bootstraps use fixed random numbers (``_quiet``), so a report is the same every time it
+is drawn. Scores are "higher is better" where a comparison needs a direction: a domain
 whose threshold is "<=" (fewer steps, lower cost) is negated first (``oriented``).
 """
 from __future__ import annotations
@@ -23,12 +23,20 @@ def _rly():
 
 
 def _quiet(estimate):
-    """rliable passes ``random_state`` to arch, which warns that it prefers a Generator: the
-    estimates are right and reproducible, so the warning only clutters a report."""
+    """Reproducible and quiet. rliable's stratified resampling draws its indices from numpy's
+    global generator, not the RandomState it is given (measured: the same call gave three
+    different intervals), so that generator is seeded for the call and then put back as it
+    was. rliable passes ``random_state`` on to arch, which warns that it prefers a Generator;
+    the warning only clutters a report."""
     def quiet(*args, **kwargs):
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", "random_state is deprecated", FutureWarning)
-            return estimate(*args, **kwargs)
+        saved = np.random.get_state()
+        np.random.seed(SEED)
+        try:
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", "random_state is deprecated", FutureWarning)
+                return estimate(*args, **kwargs)
+        finally:
+            np.random.set_state(saved)
     return quiet
 
 
