@@ -7,7 +7,7 @@
 Each soak is a real ``train.py`` process; its resident memory (VmRSS) is sampled every
 ``--every`` seconds from /proc. Printed: the peak and final RSS and the slope of a
 least-squares line through the samples after warm-up (the first quarter of the run),
-in MiB per hour. ``soak.json`` keeps every sample.
+in MiB per hour; the last sample, taken while the process exits, is left out. ``soak.json`` keeps every sample.
 
     square       DGPQ "shaped", 1,024 seeds x 50 episodes (Q̂ and the sparse GPs fill, then
                  reach their steady size)
@@ -55,6 +55,7 @@ def soak(name: str, args, scale: float, every: float, work: Path) -> dict:
     err = proc.stderr.read()
     if proc.returncode:
         raise SystemExit(f"{name}: train.py exited {proc.returncode}: {err.strip()[-300:]}")
+    samples = samples[:-1] if len(samples) > 2 else samples  # the last one is taken while the process exits
     t, m = (np.array(c) for c in zip(*samples)) if samples else (np.zeros(1), np.zeros(1))
     late = t >= t[-1] / 4
     slope = float(np.polyfit(t[late], m[late], 1)[0] * 3600) if late.sum() >= 3 else float("nan")
