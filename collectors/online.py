@@ -79,11 +79,12 @@ class OnlineCollector:
         return int(self.episode.sum())
 
     def run(self, on_rows: Optional[Callable[[List[dict]], None]] = None,
-            after_step: Optional[Callable[["OnlineCollector"], bool]] = None) -> pd.DataFrame:
+            after_step: Optional[Callable[["OnlineCollector"], bool]] = None, keep: bool = True) -> pd.DataFrame:
         """Collect until every seed has finished its episodes. After each batched step,
         ``on_rows(rows)`` gets the rows of the episodes that ended in it, then
         ``after_step(self)`` may return True to stop early (``run`` again continues).
-        Returns the rows of this call, sorted by seed and episode."""
+        Returns the rows of this call, sorted by seed and episode; with ``keep=False`` none
+        are kept (a caller that writes them through ``on_rows`` holds no row in memory)."""
         env, agent = self.env, self.agent
         S = env.batch_size[0]
         rows = []
@@ -119,7 +120,8 @@ class OnlineCollector:
             new_rows = []
             if ended.any():
                 new_rows = self._finish(ended, nxt)
-                rows += new_rows
+                if keep:
+                    rows += new_rows
                 if not budget:
                     bar.update(len(new_rows))
             if budget and self.progress and self.total % 50 == 0:

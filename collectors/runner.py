@@ -429,7 +429,7 @@ def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: 
 
         try:
             folder.set_status("running", episodes_done=collector.episodes_done)
-            collector.run(on_rows=folder.append_rows, after_step=after_step)
+            collector.run(on_rows=folder.append_rows, after_step=after_step, keep=False)  # rows live on disk
             save()
         except MemoryLimit as err:  # raised between steps: the state is whole, so keep it
             save()
