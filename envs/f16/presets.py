@@ -15,6 +15,12 @@ probed on 4 seeds x 150-200 episodes (README "Aircraft altitude hold"):
   lengthscales 0.5, 1, 2 and 4 were at −353, −164, −208 and −174 (median of the seeds'
   mean over episodes 141–150); these settings were at −137 by episodes 11–20.
 
+Also tried from these settings (4 seeds, median of the last 10 episodes' means): γ 0.95
+(−138 at 150 episodes), γ 0.99 (−135), γ 0.97 with ε₁ 0.01 (−136 at 200), lengthscale 1 at
+γ 0.95 (−136), the airspeed kept at γ 0.97 (−134), the metric doubled at γ 0.97 (−189),
+no envelope at γ 0.97 and 0.99 (−131, −135); at γ 0.99 the metric ×3 with lengthscale 6
+("gamma99": −190 at 200) and ×10 with lengthscale 20 (−311). None beat doing nothing (−135).
+
 What these settings learn (within ~20 episodes) is to leave the elevator alone: at
 γ = 0.9 that is about the best policy there is (from the start state, doing nothing is
 worth −2.3 discounted, PD −4.1); the few elevator pulses that make PD fly at −37 pay only
