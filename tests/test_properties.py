@@ -88,7 +88,8 @@ pairs = st.lists(st.tuples(unit, unit, st.floats(-5.0, 5.0, allow_nan=False)), m
 def test_qhat_is_the_lower_envelope_of_its_cones_below_vmax_and_lipschitz(stored, lipschitz, v_max, queries):
     q = LipschitzQ(1, 1, 2, lipschitz, v_max, "l1", capacity=2)
     for a, b, mu in stored:    # inserting prunes dominated pairs: the envelope must not change by it
-        q.insert(torch.tensor([[a, b]], dtype=torch.float64), torch.tensor([0]), torch.tensor([mu], dtype=torch.float64),
+        q.insert(torch.tensor([[a, b]], dtype=torch.float64), torch.tensor([0]),
+                 torch.tensor([mu], dtype=torch.float64),
                  torch.tensor([True]))
     values = []
     for x1, x2 in queries:

@@ -25,7 +25,8 @@ from trl_dgpq.commands import command, prog
 
 
 def make_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog("sweep"), description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(prog=prog("sweep"), description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("file", nargs="?", help="sweep file (TOML)")
     p.add_argument("--out", help="sweep folder")
     p.add_argument("--resume", metavar="OUT", help="continue the sweep in OUT: only unfinished jobs run")
