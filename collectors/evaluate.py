@@ -16,7 +16,7 @@ import hashlib
 import io
 import json
 from pathlib import Path
-from typing import List
+from typing import Iterator, List, Optional
 
 import pandas as pd
 import torch
@@ -44,10 +44,34 @@ class Frozen:
         return self.agent.episode_stats()
 
 
+def episode_steps(env, policy, td, row: Optional[int] = None) -> Iterator[tuple]:
+    """Play on from ``td`` (a state the env just reset to) under ``policy`` (td -> actions):
+    yield ``(td, nxt, done)`` after each step -- ``td`` with its action, ``nxt`` the step's
+    "next" entries, ``done`` the seeds that have finished so far -- until seed row ``row``
+    is done (every seed when ``row`` is None). No seed is reset on the way; the pictures and
+    traces of the domains are drawn from these steps."""
+    done = torch.zeros(env.batch_size[0], dtype=torch.bool)
+    while True:
+        td["action"] = policy(td)
+        nxt = env.step(td)["next"]
+        done = done | nxt["done"].reshape(-1)
+        yield td, nxt, done
+        if bool(done[row]) if row is not None else bool(done.all()):
+            return
+        td = nxt.exclude("reward", "done", "terminated", "truncated")
+
+
+def job_folders(folder: Path) -> List[Path]:
+    """The folders of ``folder``'s run holding a config.json and a checkpoint: the run itself,
+    or the jobs of a sweep experiment (empty if none)."""
+    folder = Path(folder)
+    return [j for j in [folder, *sorted((folder / "jobs").glob("*"))]
+            if (j / "config.json").is_file() and (j / CHECKPOINT).is_file()]
+
+
 def jobs(folder: Path) -> List[Path]:
-    """The folders holding a config.json and a checkpoint: the run, or a sweep experiment's jobs."""
-    found = [j for j in [folder, *sorted((folder / "jobs").glob("*"))]
-             if (j / "config.json").is_file() and (j / CHECKPOINT).is_file()]
+    """``job_folders``, or RunError (one line) if there is none."""
+    found = job_folders(folder)
     if not found:
         raise RunError(f"{folder} holds no run with a checkpoint (config.json and {CHECKPOINT}): train it first")
     return found
@@ -95,4 +119,5 @@ def evaluate(folder, episodes: int = 10, progress: bool = False) -> pd.DataFrame
     return df
 
 
-__all__ = ["EVAL", "Frozen", "evaluate", "evaluate_job", "frame", "jobs", "restore"]
+__all__ = ["EVAL", "Frozen", "episode_steps", "evaluate", "evaluate_job", "frame", "job_folders", "jobs",
+           "restore"]

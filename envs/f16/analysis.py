@@ -41,19 +41,15 @@ def window_reward(df: pd.DataFrame, first: int, last: int) -> float:
 def fly(env, policy) -> dict:
     """Seed row 0's next episode under ``policy`` (a callable td -> actions), learning off:
     {"t": s, "h": ft, "elevator": -1/0/+1, "reward": the episode's}."""
+    from trl_dgpq.collectors.evaluate import episode_steps
     td = env.reset()
     t, h, e, total = [0.0], [float(td["state"][0, 0])], [], 0.0
-    while True:
-        td["action"] = policy(td)
+    for td, nxt, _ in episode_steps(env, policy, td, row=0):
         e.append(int(td["action"][0]) - 1)
-        td = env.step(td)
-        nxt = td["next"]
         t.append(t[-1] + env.cfg.dt)
         h.append(float(nxt["state"][0, 0]))
         total += float(nxt["reward"][0])
-        if bool(nxt["done"][0]):
-            return dict(t=np.array(t), h=np.array(h), elevator=np.array(e), reward=total)
-        td = nxt.exclude("reward", "done", "terminated", "truncated")
+    return dict(t=np.array(t), h=np.array(h), elevator=np.array(e), reward=total)
 
 
 def flights(folder: Path) -> dict:
@@ -148,9 +144,8 @@ def reward_figure(runs, labels, out: Path, block: int = 10, title: str = "") -> 
 def figures(runs, labels, out: Path, block: int = 10, last=None, title: str = "", **_) -> list:
     """f16_reward.png, and f16_trace.png for the first learner with a checkpoint."""
     written = [reward_figure(runs, labels, out, block=block, title=title)]
-    learner = next((r for r in runs if r.agent not in SCRIPTED and (any(r.path.glob("checkpoint.pt"))
-                                                                     or any(r.path.glob("jobs/*/checkpoint.pt")))),
-                   None)
+    from trl_dgpq.collectors.evaluate import job_folders
+    learner = next((r for r in runs if r.agent not in SCRIPTED and job_folders(r.path)), None)
     if learner is not None:
         written.append(trace_figure(learner.path, out, title))
     return written

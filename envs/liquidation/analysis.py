@@ -113,7 +113,7 @@ def holdings(folder: Path, episodes: int = 10):
     apart from training's); a seed that has sold out holds 0 from then on."""
     import numpy as np
 
-    from trl_dgpq.collectors.evaluate import Frozen, jobs, restore
+    from trl_dgpq.collectors.evaluate import Frozen, episode_steps, jobs, restore
     out = []
     for job in jobs(folder):
         _, env, agent, _ = restore(job)
@@ -121,15 +121,9 @@ def holdings(folder: Path, episodes: int = 10):
         policy, X = Frozen(agent), float(env.cfg.shares)
         for _ in range(episodes):
             td = env.reset()
-            path, done = [td["shares_left"].double() / X], None
-            for _ in range(env.cfg.trades):
-                td["action"] = policy.act(td)
-                nxt = env.step(td)["next"]
-                done = nxt["done"].reshape(-1) if done is None else done | nxt["done"].reshape(-1)
-                path.append(torch.where(done, 0.0, nxt["shares_left"].double() / X))
-                td = nxt.exclude("reward", "done", "terminated", "truncated")
-                if bool(done.all()):
-                    break
+            path = [td["shares_left"].double() / X]
+            path += [torch.where(done, 0.0, nxt["shares_left"].double() / X)   # every seed sells out by the last trade
+                     for _, nxt, done in episode_steps(env, policy.act, td)]
             path += [torch.zeros_like(path[0])] * (env.cfg.trades + 1 - len(path))
             out.append(torch.stack(path, 1).numpy())
     return np.concatenate(out)
@@ -143,12 +137,13 @@ def holdings_figure(runs, labels, out: Path, episodes: int = 10, title: str = ""
     import numpy as np
 
     from trl_dgpq.analysis.figures import save
+    from trl_dgpq.collectors.evaluate import job_folders
     model = ACModel.from_config(from_dict(LiquidationConfig, runs[0].config["env"]))
     k = np.arange(model.trades + 1)
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     drawn = 0
     for run, label in zip(runs, labels):
-        if run.agent in ("ac-optimal", "twap") or not any(run.path.glob("**/checkpoint.pt")):
+        if run.agent in ("ac-optimal", "twap") or not job_folders(run.path):
             continue
         h = holdings(run.path, episodes)
         line, = ax.plot(k, np.median(h, 0), lw=1.4, label=f"{label} ({h.shape[0]} evaluation episodes)")

@@ -38,8 +38,8 @@ def figures(runs, labels, out: Path, last=None, title: str = "", **_) -> list:
         ax.set_title(title, fontsize=9)
     written = save(fig, out / "push.png")
     (out / "push.md").write_text(table(runs, labels, last or DEFAULT_LAST))
-    learner = next((r for r in runs if r.config and r.agent != "oracle" and any(r.path.glob("**/checkpoint.pt"))),
-                   None)
+    from trl_dgpq.collectors.evaluate import job_folders
+    learner = next((r for r in runs if r.config and r.agent != "oracle" and job_folders(r.path)), None)
     return [written, out / "push.md"] + ([animation(learner.path, out)] if learner else [])
 
 
@@ -122,15 +122,11 @@ def frame(env, row: int, width: int, height: int) -> np.ndarray:
 
 def episode_frames(env, policy, row: int = 0, width: int = 240, height: int = 180) -> list:
     """Frames of seed row ``row``'s next episode under ``policy`` (td -> actions)."""
+    from trl_dgpq.collectors.evaluate import episode_steps
     td = env.reset()
     frames = [frame(env, row, width, height)]
-    while True:
-        td["action"] = policy(td)
-        td = env.step(td)["next"]
-        frames.append(frame(env, row, width, height))
-        if bool(td["done"][row]):
-            return frames
-        td = td.exclude("reward", "done", "terminated", "truncated")
+    frames += [frame(env, row, width, height) for _ in episode_steps(env, policy, td, row)]
+    return frames
 
 
 def animation(folder: Path, out: Path, width: int = 240, height: int = 180) -> Path:

@@ -82,18 +82,12 @@ def qhat_grid(agent, n: int = 41, row: int = 0):
 
 def greedy_path(env, agent, row: int = 0) -> np.ndarray:
     """Seed row ``row``'s positions over one evaluation episode, exploration off."""
-    from trl_dgpq.collectors.evaluate import Frozen
-    policy = Frozen(agent)
+    from trl_dgpq.collectors.evaluate import Frozen, episode_steps
     env.for_evaluation()
     td = env.reset()
     path = [td["observation"][row].numpy().copy()]
-    while True:
-        td["action"] = policy.act(td)
-        td = env.step(td)["next"]
-        path.append(td["observation"][row].numpy().copy())
-        if bool(td["done"][row]):
-            return np.array(path)
-        td = td.exclude("reward", "done", "terminated", "truncated")
+    path += [nxt["observation"][row].numpy().copy() for _, nxt, _ in episode_steps(env, Frozen(agent).act, td, row)]
+    return np.array(path)
 
 
 def qhat_figure(folder: Path, out: Path, title: str = "") -> Optional[Path]:
@@ -150,10 +144,10 @@ def qhat_figure(folder: Path, out: Path, title: str = "") -> Optional[Path]:
 def figures(runs, labels, out: Path, title: str = "", **_) -> list:
     """The generic episode figures, and qhat.png for the first DGPQ run with a checkpoint."""
     from trl_dgpq.analysis.figures import episode_figures
+    from trl_dgpq.collectors.evaluate import job_folders
     written = episode_figures(runs, labels, out, title=title)
     for run in runs:
-        if run.config and run.agent == "dgpq" and ((run.path / "checkpoint.pt").is_file()
-                                                   or any(run.path.glob("jobs/*/checkpoint.pt"))):
+        if run.config and run.agent == "dgpq" and job_folders(run.path):
             path = qhat_figure(run.path, out, title)
             if path is not None:
                 written.append(path)
