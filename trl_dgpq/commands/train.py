@@ -65,7 +65,7 @@ def list_presets() -> str:
     lines = []
     for d in domains():
         for env, agent, table in d.preset_tables():
-            default = d.default_preset(env.partition(":")[2] or None)
+            default = d.default_preset(split_name(env)[1])
             names = sorted(table, key=lambda n: (n != default, n))
             lines.append(f"{env:<22} {agent:<12} " + ", ".join(f"{n} (default)" if n == default else n
                                                                  for n in names))
