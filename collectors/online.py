@@ -18,6 +18,13 @@ so ``wall_s`` / ``cpu_s`` of an episode is that seed's share of the batch's cost
 The collector's state (the current observation TensorDict, per-seed episode
 counters and accumulators) saves and restores with ``state_dict``, so a run can
 stop after any step and continue exactly.
+
+Lengthening a run (more episodes, a larger budget) must continue each seed from the
+step at which it stopped: a stopped seed's env and agent go on stepping with the
+batch, so a later state no longer holds where it stopped. ``stopped_at`` records the
+batched step at which each seed stopped, and ``first_stop`` says when a state is the
+one to keep for that: seeds stopped in the step just taken, and none before, so every
+stopped seed is still where it stopped. ``reactivate`` lets them go on.
 """
 from __future__ import annotations
 
@@ -47,7 +54,7 @@ class OnlineCollector:
     ``step_seconds`` holds the wall time of every batched step (for benchmarks).
     """
 
-    ACCUMULATORS = ("episode", "steps", "ret", "wall", "cpu", "active", "env_steps_done")
+    ACCUMULATORS = ("episode", "steps", "ret", "wall", "cpu", "active", "env_steps_done", "stopped_at")
 
     def __init__(self, env, agent, episodes: int, max_total_steps: Optional[int] = None,
                  progress: bool = True, desc: str = "episodes", env_steps: int = 0,
@@ -67,6 +74,7 @@ class OnlineCollector:
         self.episode, self.steps, self.env_steps_done = zeros(torch.long), zeros(torch.long), zeros(torch.long)
         self.ret, self.wall, self.cpu = zeros(), zeros(), zeros()
         self.active = torch.ones(S, dtype=torch.bool)
+        self.stopped_at = torch.full((S,), -1, dtype=torch.long)  # the batched step a seed stopped at; -1 active
         self.total = 0      # batched steps so far
         self.td = None      # the current observation TensorDict (None: reset first)
 
@@ -173,17 +181,47 @@ class OnlineCollector:
                              **{k: v[i] for k, v in stats.items()}))
         for name in ("steps", "ret", "wall", "cpu"):
             getattr(self, name)[ended] = 0
+        was_active = self.active.clone()
         self.active &= self.episode < self.episodes
         if self.env_steps:  # only at the end of a seed's own episode
             self.active &= ~(ended & (self.env_steps_done >= self.env_steps))
+        self.stopped_at[was_active & ~self.active] = self.total
         return rows
+
+    @property
+    def first_stop(self) -> bool:
+        """Seeds stopped in the step just taken, and none before (-2: at a step unknown): the
+        state from which every stopped seed can be continued exactly. (A seed that stays
+        stopped when a run is lengthened keeps this state the one to continue from.)"""
+        earlier = (self.stopped_at != -1) & (self.stopped_at < self.total)
+        return bool((self.stopped_at == self.total).any()) and not bool(earlier.any())
+
+    def to_continue(self) -> torch.Tensor:
+        """Stopped seeds that ``episodes`` and ``env_steps`` (lengthened since) say go on."""
+        more = ~self.active & (self.episode < self.episodes)
+        if self.env_steps:
+            more &= self.env_steps_done < self.env_steps
+        return more
+
+    def reactivate(self) -> None:
+        """Let the seeds of ``to_continue`` go on; ValueError if any of them has been
+        stepped since it stopped (this state cannot continue it exactly)."""
+        more = self.to_continue()
+        late = more & (self.stopped_at != self.total)
+        if late.any():
+            raise ValueError(f"seeds {[self.seeds[i] for i in late.nonzero()[:, 0].tolist()]} stopped at an "
+                             f"earlier step than this state's {self.total}")
+        if more.any():
+            self.active |= more
+            self.stopped_at[more] = -1
 
     def state_dict(self) -> dict:
         return {"total": self.total, "td": None if self.td is None else self.td.to_dict(),
                 **{name: getattr(self, name).clone() for name in self.ACCUMULATORS}}
 
     def load_state_dict(self, state: dict) -> None:
-        state = {"env_steps_done": torch.zeros_like(self.steps), **state}  # checkpoints from before budgets had none
+        # what older checkpoints lack: no budget yet; where seeds stopped unknown (-2: cannot be continued)
+        state = {"env_steps_done": torch.zeros_like(self.steps), "stopped_at": torch.where(state["active"], -1, -2), **state}
         for name in self.ACCUMULATORS:
             if state[name].shape != getattr(self, name).shape:
                 raise ValueError(f"collector state is for {state[name].shape[0]} seeds, not {len(self.seeds)}")

@@ -6,13 +6,19 @@
                         rewritten sorted by (seed, episode) when the run finishes
     OUT/checkpoint.pt   env, agent and collector state + how much of episodes.csv
                         it covers; every ``checkpoint_every`` episodes per seed, on
-                        SIGINT/SIGTERM and at the end
+                        SIGINT/SIGTERM and at the end (the one before it is kept as
+                        checkpoint.prev.pt)
+    OUT/checkpoint.extend.pt   the state at the first step in which seeds stopped (if not
+                        all at once): where ``lengthen`` (more episodes, a larger budget)
+                        goes on from
 
 Every file is replaced atomically (written to a temporary file, then renamed), so
 a kill at any moment leaves the previous version whole. ``resume`` truncates
 ``episodes.csv`` to what the last checkpoint covers and continues from it; the
 rows it then writes are those the interrupted run had written (same seeds, same
-streams), so the finished file equals an uninterrupted run's, timing aside.
+streams), so the finished file equals an uninterrupted run's, timing aside. A run
+lengthened (``lengthen``, then ``resume``) ends as a run asked for that length from
+the start would have: the seeds that ran on past checkpoint.extend.pt run again.
 """
 from __future__ import annotations
 
@@ -39,7 +45,9 @@ from .online import OnlineCollector
 CONFIG, EPISODES, STATUS, CHECKPOINT = "config.json", "episodes.csv", "status.json", "checkpoint.pt"
 LOCK = "run.lock"  # held (an OS lock) by the one process writing the run; holds its pid
 PREVIOUS = "checkpoint.prev.pt"  # the checkpoint before the latest: where a damaged latest falls back to
-RUN_FILES = (CONFIG, EPISODES, STATUS, CHECKPOINT, PREVIOUS)
+EXTEND = "checkpoint.extend.pt"  # the first step at which seeds stopped: where a lengthened run goes on from
+RUN_FILES = (CONFIG, EPISODES, STATUS, CHECKPOINT, PREVIOUS, EXTEND)
+LENGTHS = ("episodes", "env_steps")  # the settings a run can be lengthened in
 # 2: GP state in the kernel-batch layout (gp/kernels.py) with its likelihood module; format 1
 # checkpoints are refused rather than loaded into renamed or reshaped fields
 CHECKPOINT_FORMAT = 2
@@ -285,6 +293,26 @@ class RunFolder:
                 os.replace(latest, self.file(PREVIOUS))
         atomic_write(latest, lambda f: torch.save(state, f), before_replace=rotate)
 
+    def save_extension_point(self, state: dict) -> None:
+        atomic_write(self.file(EXTEND), lambda f: torch.save(state, f))
+
+    def load_extension_point(self) -> dict:
+        try:
+            return self._read_checkpoint(self.file(EXTEND))
+        except DamagedCheckpoint as err:
+            raise RunError(f"{self.path} cannot be lengthened exactly: {err} (it keeps where its seeds stopped; "
+                           "runs finished by versions before it have none): start it again at the new length") \
+                from None
+
+    def keep_rows(self, episodes: dict) -> None:
+        """Cut episodes.csv to each seed's first ``episodes[seed]`` episodes, sorted."""
+        df = self.episodes()
+        kept = df[df.episode <= df.seed.map(episodes)]
+        missing = sum(episodes.values()) - len(kept)
+        if missing:
+            raise RunError(f"{self.file(EPISODES)} lacks {missing} of the episodes its checkpoint covers")
+        self.write_episodes(kept)
+
     def load_checkpoint(self, log=None) -> Optional[dict]:
         """The latest checkpoint; if it cannot be read, the previous one, saying so through
         ``log`` (default: stderr) in one line; None if there is none. RunError if neither
@@ -349,11 +377,13 @@ def start(config: dict, folder: RunFolder, progress: bool = True) -> pd.DataFram
     return _execute(config, folder, None, progress)
 
 
-def resumable_config(folder: RunFolder) -> dict:
-    """The recorded config of the run in ``folder``, if it can be resumed (RunError if not)."""
+def resumable_config(folder: RunFolder, lengthen: bool = False) -> dict:
+    """The recorded config of the run in ``folder``, if it can be resumed, or with ``lengthen``
+    run longer (RunError if not)."""
     status = folder.status() or {}
-    if status.get("status") == "finished":
-        raise RunError(f"{folder.path} is finished; nothing to resume")
+    if status.get("status") == "finished" and not lengthen:
+        raise RunError(f"{folder.path} is finished; nothing to resume (to run it longer: --resume {folder.path} "
+                       "--episodes N)")
     if status.get("status") == "running" and _alive(status.get("pid")):
         raise RunError(f"{folder.path} is being run by process {status['pid']}")
     recorded = folder.read_json(CONFIG)
@@ -370,9 +400,46 @@ def resumable_config(folder: RunFolder) -> dict:
     return config
 
 
+def lengthen(folder: RunFolder, config: dict, **lengths) -> dict:
+    """Record in ``folder`` (config from ``resumable_config(lengthen=True)``) that its run
+    is to be longer: more ``episodes`` and/or a larger ``env_steps`` budget (0: none).
+    Returns the new config; ``resume`` then runs it on. RunError for anything shorter."""
+    unknown = set(lengths) - set(LENGTHS)
+    if unknown:
+        raise RunError(f"a run can only be lengthened in {', '.join(LENGTHS)}, not {', '.join(sorted(unknown))}")
+    old = load_sections(config)[0]
+    given = dict(lengths)
+    if "env_steps" in given and "episodes" not in given and old.episodes == old.env_steps:
+        given["episodes"] = given["env_steps"]  # the cap a budget alone set (resolve_config) follows it
+    try:
+        new = load_sections({**config, "run": {**config["run"], **given}})[0]
+    except (ValueError, KeyError) as err:
+        raise RunError(str(err)) from None
+    if new.episodes < old.episodes:
+        raise RunError(f"--episodes {new.episodes} is fewer than the run's {old.episodes}: a run can only be "
+                       "lengthened")
+    if (new.env_steps and not old.env_steps) or 0 < new.env_steps < old.env_steps:
+        raise RunError(f"--env-steps {new.env_steps} is a smaller budget than the run's "
+                       f"{old.env_steps or 'none (0)'}: a run can only be lengthened")
+    changed = {k: (getattr(old, k), getattr(new, k)) for k in LENGTHS if getattr(new, k) != getattr(old, k)}
+    if not changed:
+        return config
+    what = ", ".join(f"{k} {a:,} -> {b:,}" for k, (a, b) in changed.items())
+    # status first: a kill before the config is written leaves a run that --resume finishes as it was
+    folder.set_status("interrupted", reason=f"lengthening: {what}", episodes_done=(folder.status() or {})
+                      .get("episodes_done"))
+    recorded = folder.read_json(CONFIG)
+    recorded["run"] = {**recorded["run"], **{k: b for k, (a, b) in changed.items()}}
+    recorded.setdefault("lengthened", []).append(dict(time=time.strftime("%Y-%m-%d %H:%M:%S"), **{
+        k: dict(was=a, now=b) for k, (a, b) in changed.items()}, **provenance()))
+    folder.write_json(CONFIG, recorded)
+    return {**config, "run": {**config["run"], **{k: b for k, (a, b) in changed.items()}}}
+
+
 def resume(folder: RunFolder, config: dict, progress: bool = True) -> pd.DataFrame:
     """Continue the run in ``folder`` (config from ``resumable_config``) from its last
-    checkpoint, or from the start if it has none."""
+    checkpoint, or from the start if it has none. Where the config is longer than the run
+    (``lengthen``), from the last state at which the seeds to go on had just stopped."""
     return _execute(config, folder, folder.load_checkpoint(), progress)
 
 
@@ -402,24 +469,25 @@ def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: 
     env, agent = build(config)
     collector = OnlineCollector(env, agent, run.episodes, progress=progress, desc=describe(config),
                                 env_steps=run.env_steps, before_step=memory_guard(agent, run.max_memory))
-    csv_bytes = 0
     if checkpoint is not None:
-        env.load_state_dict(checkpoint["env"])
-        agent.load_state_dict(checkpoint["agent"])
-        collector.load_state_dict(checkpoint["collector"])
-        csv_bytes = int(checkpoint["csv_bytes"])
-    folder.truncate_csv(csv_bytes)  # rows past the checkpoint will be written again, identically
+        checkpoint = _restore(folder, checkpoint, env, agent, collector)
+    folder.truncate_csv(0 if checkpoint is None else int(checkpoint["csv_bytes"]))  # rows past it come again
     every = run.checkpoint_every * len(run.seeds)
     next_at = (collector.episodes_done // every + 1) * every if every else None
 
+    def state():
+        return dict(format=CHECKPOINT_FORMAT, csv_bytes=folder.csv_size(), episodes_done=collector.episodes_done,
+                    env=env.state_dict(), agent=agent.state_dict(), collector=collector.state_dict())
+
     def save():
-        folder.save_checkpoint(dict(format=CHECKPOINT_FORMAT, csv_bytes=folder.csv_size(),
-                                    episodes_done=collector.episodes_done, env=env.state_dict(),
-                                    agent=agent.state_dict(), collector=collector.state_dict()))
+        folder.save_checkpoint(state())
 
     with deferred_signals() as caught:
         def after_step(c: OnlineCollector) -> bool:
             nonlocal next_at
+            # (every seed stopping at once: the final checkpoint is that state; none needed)
+            if c.first_stop and not c.finished:
+                folder.save_extension_point(state())
             if caught["signum"] is not None:
                 return True
             if next_at is not None and c.episodes_done >= next_at and not c.finished:
@@ -458,3 +526,28 @@ def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: 
         raise RunError(f"cannot write {err.filename or folder.path}: {err.strerror or err}; every episode is in "
                        f"episodes.csv (unsorted): free space, then --resume {folder.path} to finish it") from None
     return df
+
+
+def _restore(folder: RunFolder, checkpoint: dict, env, agent, collector: OnlineCollector) -> dict:
+    """Load ``checkpoint`` into env, agent and collector. If the run's length has grown
+    (``lengthen``), seeds it stopped go on; from the latest checkpoint if they had just
+    stopped there, else from checkpoint.extend.pt, with episodes.csv cut back to what
+    that covers. Returns the checkpoint loaded."""
+    collector.load_state_dict(checkpoint["collector"])
+    if collector.to_continue().any():
+        try:
+            collector.reactivate()
+        except ValueError:
+            checkpoint = folder.load_extension_point()
+            collector.load_state_dict(checkpoint["collector"])
+            try:
+                collector.reactivate()
+            except ValueError as err:
+                raise RunError(f"{folder.path} cannot be lengthened exactly: {err} (the state kept in {EXTEND}); "
+                               "start it again at the new length") from None
+        # the CSV may be sorted (a finished run) or hold rows past this state: keep what it covers
+        folder.keep_rows(dict(zip(collector.seeds, collector.episode.tolist())))
+        checkpoint = {**checkpoint, "csv_bytes": folder.csv_size()}
+    env.load_state_dict(checkpoint["env"])
+    agent.load_state_dict(checkpoint["agent"])
+    return checkpoint

@@ -30,7 +30,8 @@ def run(*argv):
 def test_run_folder_files_status_and_provenance(tmp_path):
     out = tmp_path / "run"
     assert run("--seeds", 2, "--episodes", 3, "--out", out) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["checkpoint.pt", "config.json", "episodes.csv", "run.lock", "status.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["checkpoint.extend.pt", "checkpoint.pt", "config.json",
+                                                     "episodes.csv", "run.lock", "status.json"]
     df = pd.read_csv(out / "episodes.csv")
     assert list(df.seed) == [0, 0, 0, 1, 1, 1] and list(df.episode) == [1, 2, 3] * 2
     cfg = json.loads((out / "config.json").read_text())
@@ -116,6 +117,23 @@ def test_resume_refuses_a_finished_run(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         train.main(["--resume", str(tmp_path / "r")])
     assert exc.value.code == 2 and "finished" in capsys.readouterr().err
+
+
+def test_resume_with_more_episodes_runs_a_finished_run_longer(tmp_path, capsys):
+    """The command line of lengthening (its exactness is in test_state): --episodes or --env-steps
+    only, longer only, each refusal one line and exit 2."""
+    run("--seeds", 2, "--episodes", 2, "--max-steps", 30, "--out", tmp_path / "r")
+    run("--seeds", 2, "--episodes", 3, "--max-steps", 30, "--out", tmp_path / "ref")
+    for argv, words in [(["--episodes", "1"], "fewer"), (["--gamma", "0.5"], "no settings other than"),
+                        (["--env-steps", "50"], "smaller budget")]:
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as exc:
+            train.main(["--resume", str(tmp_path / "r"), *argv])
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and words in err and len(err.strip().splitlines()) == 1, err
+    assert train.main(["--resume", str(tmp_path / "r"), "--set", "run.episodes=3", "--no-progress"]) == 0
+    assert "(3 episodes per seed)" in capsys.readouterr().out
+    pd.testing.assert_frame_equal(csv(tmp_path / "ref"), csv(tmp_path / "r"))
 
 
 def test_interrupt_writes_a_checkpoint_covering_every_episode_on_disk(tmp_path, stop_run_after):

@@ -272,3 +272,110 @@ def test_a_sigint_during_the_last_step_leaves_a_finished_sorted_run(tmp_path, st
     runner.start(config, folder, progress=False)
     assert folder.status()["status"] == "finished"
     assert list(episodes(folder).seed) == [0, 0, 0, 1, 1, 1]
+
+
+def stops_apart(folder) -> bool:
+    """Whether the run's seeds stopped at different steps (checkpoint.extend.pt is then an earlier state)."""
+    total = lambda name: torch.load(folder.file(name), weights_only=True)["collector"]["total"]  # noqa: E731
+    return total("checkpoint.extend.pt") < total("checkpoint.pt")
+
+
+def lengthened(tmp_path, config, name, **lengths):
+    """A run of ``config`` started, finished (its seeds stopping at different steps), then
+    lengthened to ``lengths`` and resumed."""
+    folder = runner.RunFolder.create(str(tmp_path / name), "x")
+    runner.start(config, folder, progress=False)
+    assert stops_apart(folder)
+    longer = runner.lengthen(folder, runner.resumable_config(folder, lengthen=True), **lengths)
+    runner.resume(folder, longer, progress=False)
+    assert folder.status()["status"] == "finished"
+    return folder
+
+
+@pytest.mark.parametrize("case", sorted(AGENT_CASES))
+def test_a_finished_run_lengthened_equals_the_longer_run(tmp_path, case):
+    """3 episodes per seed, then --episodes 5: the same CSV as 5 from the start. The seeds end
+    their 3rd episode at different steps and go on stepping with the batch, so this holds
+    only if each goes on from where it stopped (checkpoint.extend.pt)."""
+    whole = runner.RunFolder.create(str(tmp_path / "whole"), "x")
+    runner.start(resolve_config(seeds=[0, 1, 2], episodes=5, **AGENT_CASES[case]), whole, progress=False)
+    part = runner.RunFolder.create(str(tmp_path / "part"), "x")
+    runner.start(resolve_config(seeds=[0, 1, 2], episodes=3, **AGENT_CASES[case]), part, progress=False)
+    longer = runner.lengthen(part, runner.resumable_config(part, lengthen=True), episodes=5)
+    runner.resume(part, longer, progress=False)
+    pd.testing.assert_frame_equal(episodes(whole), episodes(part))
+
+
+def test_lengthening_twice_and_by_budget_equals_the_longer_run(tmp_path):
+    """Square episodes of random lengths: 2 -> 4 -> 7 episodes, and a budget of 60 -> 150 steps,
+    each equal to the longer run from the start; config.json records the new length."""
+    base = dict(seeds=[0, 1, 2, 3], max_steps=60, checkpoint_every=1)
+    whole = runner.RunFolder.create(str(tmp_path / "whole"), "x")
+    runner.start(resolve_config(episodes=7, **base), whole, progress=False)
+    part = runner.RunFolder.create(str(tmp_path / "part"), "x")
+    runner.start(resolve_config(episodes=2, **base), part, progress=False)
+    point = lambda: torch.load(part.file("checkpoint.extend.pt"), weights_only=True)["collector"]["total"]  # noqa
+    first = point()
+    runner.resume(part, runner.lengthen(part, runner.resumable_config(part, lengthen=True), episodes=4),
+                  progress=False)
+    assert episodes(part).groupby("seed").size().tolist() == [4] * 4
+    assert point() > first      # where the next lengthening goes on from moved on: only the tail is redone
+    longer = runner.lengthen(part, runner.resumable_config(part, lengthen=True), episodes=7)
+    runner.resume(part, longer, progress=False)
+    pd.testing.assert_frame_equal(episodes(whole), episodes(part))
+    recorded = part.read_json("config.json")
+    assert recorded["run"]["episodes"] == 7 and [e["episodes"]["was"] for e in recorded["lengthened"]] == [2, 4]
+
+    budget = runner.RunFolder.create(str(tmp_path / "budget"), "x")
+    runner.start(resolve_config(env_steps=150, **base), budget, progress=False)
+    short = lengthened(tmp_path, resolve_config(env_steps=60, **base), "short", env_steps=150)
+    pd.testing.assert_frame_equal(episodes(budget), episodes(short))
+    assert short.read_json("config.json")["run"]["episodes"] == 150   # the cap a budget alone set follows it
+
+
+def test_a_kill_between_recording_the_length_and_running_it_is_resumed(tmp_path):
+    """``lengthen`` writes the new length; a plain resume afterwards (the process killed before it
+    ran) ends as the longer run, from the finished run's final checkpoint."""
+    base = dict(seeds=[0, 1, 2], max_steps=60)
+    whole = runner.RunFolder.create(str(tmp_path / "whole"), "x")
+    runner.start(resolve_config(episodes=4, **base), whole, progress=False)
+    part = runner.RunFolder.create(str(tmp_path / "part"), "x")
+    runner.start(resolve_config(episodes=2, **base), part, progress=False)
+    assert stops_apart(part)
+    runner.lengthen(part, runner.resumable_config(part, lengthen=True), episodes=4)
+    assert part.status()["status"] == "interrupted"
+    runner.resume(part, runner.resumable_config(part), progress=False)
+    pd.testing.assert_frame_equal(episodes(whole), episodes(part))
+
+
+def test_lengthening_refuses_what_it_cannot_do_exactly(tmp_path):
+    base = dict(seeds=[0, 1, 2], max_steps=60)
+    folder = runner.RunFolder.create(str(tmp_path / "r"), "x")
+    runner.start(resolve_config(episodes=3, **base), folder, progress=False)
+    assert stops_apart(folder)
+    config = runner.resumable_config(folder, lengthen=True)
+    for lengths, words in [(dict(episodes=2), "fewer"), (dict(env_steps=100), "smaller budget"),
+                           (dict(gamma=0.5), "only be lengthened in")]:
+        with pytest.raises(runner.RunError, match=words):
+            runner.lengthen(folder, config, **lengths)
+    assert folder.status()["status"] == "finished"                    # refused before anything changed
+    folder.file("checkpoint.extend.pt").unlink()    # as a run finished by an older version
+    longer = runner.lengthen(folder, config, episodes=4)
+    with pytest.raises(runner.RunError, match="cannot be lengthened exactly"):
+        runner.resume(folder, longer, progress=False)
+
+
+def test_a_seed_the_episode_cap_stopped_goes_on_when_the_cap_is_raised_later(tmp_path):
+    """Episodes of ~31 steps, 3 at most, a budget of 62: seeds 0, 1, 3 reach the budget in 2
+    episodes, seed 2 (61 steps) stops at the cap. A budget of 150 lets only 0, 1, 3 go on (to the
+    cap); 6 episodes then lets every seed go on: equal to asking for both from the start."""
+    base = dict(seeds=[0, 1, 2, 3], max_steps=40)
+    whole = runner.RunFolder.create(str(tmp_path / "whole"), "x")
+    runner.start(resolve_config(episodes=6, env_steps=150, **base), whole, progress=False)
+    part = runner.RunFolder.create(str(tmp_path / "part"), "x")
+    runner.start(resolve_config(episodes=3, env_steps=62, **base), part, progress=False)
+    assert episodes(part).groupby("seed").size().tolist() == [2, 2, 3, 2]    # seed 2 held by the cap
+    for lengths in (dict(env_steps=150), dict(episodes=6)):
+        longer = runner.lengthen(part, runner.resumable_config(part, lengthen=True), **lengths)
+        runner.resume(part, longer, progress=False)
+    pd.testing.assert_frame_equal(episodes(whole), episodes(part))

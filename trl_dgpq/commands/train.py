@@ -6,6 +6,7 @@
     python scripts/train.py --agent random --episodes 20 --set env.noise=0.02
     python scripts/train.py --config runs/X/config.json --out runs/again    # repeat a recorded run
     python scripts/train.py --resume runs/X                                 # continue an interrupted run
+    python scripts/train.py --resume runs/X --episodes 200                  # run it longer, as if asked from the start
 
 Every setting of the run, the env and the agent is a flag (``--noise-var 0.2``)
 and can be given as ``--set key=value`` (``--set gp.noise_var=0.2``); both are
@@ -77,7 +78,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="run folder (default runs/<env>-<agent>-<preset>-<time>); "
                                                "refused if it holds a run, unless --overwrite")
     p.add_argument("--overwrite", action="store_true", help="replace the run in --out")
-    p.add_argument("--resume", metavar="OUT", default=None, help="continue the run in OUT from its last checkpoint")
+    p.add_argument("--resume", metavar="OUT", default=None,
+                   help="continue the run in OUT from its last checkpoint; with --episodes and/or --env-steps, "
+                        "run it (even a finished one) longer, exactly as if that length had been asked from the start")
     p.add_argument("--config", metavar="FILE", default=None,
                    help="start from a recorded config.json (flags override it)")
     p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
@@ -163,12 +166,20 @@ def _main(argv=None) -> int:
         return 0
     try:
         if args.resume:
-            if settings or args.config or args.out or args.overwrite:
-                parser.error("--resume continues a run as it was configured: give no settings, --config, --out "
-                             "or --overwrite with it")
+            lengths = {k.removeprefix("run."): v for k, v in settings.items()
+                       if k.removeprefix("run.") in runner.LENGTHS}
+            if len(lengths) < len(settings) or args.config or args.out or args.overwrite:
+                parser.error("--resume continues a run as it was configured: give no settings other than a longer "
+                             "--episodes or --env-steps, and no --config, --out or --overwrite with it")
             folder = runner.RunFolder.existing(args.resume)
-            config = runner.resumable_config(folder)
-            print(f"resuming {folder.path}")
+            try:
+                config = runner.resumable_config(folder, lengthen=bool(lengths))
+                if lengths:
+                    config = runner.lengthen(folder, config, **lengths)
+            except BaseException:
+                folder.release()  # refused: the folder is free again at once
+                raise
+            print(f"resuming {folder.path}" + (f" ({length(config['run'])} per seed)" if lengths else ""))
             df = runner.resume(folder, config, progress=not args.no_progress)
         else:
             base = None
