@@ -334,7 +334,9 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
                                 elapsed_s=round(time.perf_counter() - t0, 2))
         failed = sum(r["status"] != "finished" for name, r in report.items() if name in names)
         left = len(todo) - done[0]
-        line = (f"[{done[0]}/{len(todo)} jobs done, {failed} not finished, {left} to go; "
+        # local: the pool refills at once, so min(workers, left) run; Ray schedules what it was given
+        running = f" ({min(workers or os.cpu_count() or 1, left)} running)" if backend == "local" and left else ""
+        line = (f"[{done[0]}/{len(todo)} jobs done, {failed} not finished, {left} to go{running}; "
                 f"{(time.perf_counter() - t0) / 60:.1f} min] {job.name}: {result['status']}")
         log(line + (f" -- {result['reason']}" if result.get("reason") else ""))
         runner.RunFolder(out).write_json(REPORT, report)
