@@ -336,8 +336,10 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
         left = len(todo) - done[0]
         # local: the pool refills at once, so min(workers, left) run; Ray schedules what it was given
         running = f" ({min(workers or os.cpu_count() or 1, left)} running)" if backend == "local" and left else ""
+        minutes = (time.perf_counter() - t0) / 60
+        eta = f", ~{minutes / done[0] * left:.0f} min left at this rate" if left else ""  # jobs differ: a guide
         line = (f"[{done[0]}/{len(todo)} jobs done, {failed} not finished, {left} to go{running}; "
-                f"{(time.perf_counter() - t0) / 60:.1f} min] {job.name}: {result['status']}")
+                f"{minutes:.1f} min{eta}] {job.name}: {result['status']}")
         log(line + (f" -- {result['reason']}" if result.get("reason") else ""))
         runner.RunFolder(out).write_json(REPORT, report)
 

@@ -216,6 +216,7 @@ def test_each_finished_job_reports_how_many_are_done_failed_and_to_go(tmp_path):
     progress = [line for line in lines if "jobs done" in line]
     assert [line.split(";")[0] for line in progress] == [f"[{k}/3 jobs done, 0 not finished, {3 - k} to go"
                                                         + (" (1 running)" if k < 3 else "") for k in (1, 2, 3)]
+    assert [("min left at this rate" in line) for line in progress] == [True, True, False]
 
 
 @pytest.mark.slow
