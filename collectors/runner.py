@@ -468,7 +468,8 @@ def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: 
     use_threads(config)
     env, agent = build(config)
     collector = OnlineCollector(env, agent, run.episodes, progress=progress, desc=describe(config),
-                                env_steps=run.env_steps, before_step=memory_guard(agent, run.max_memory))
+                                env_steps=run.env_steps, before_step=memory_guard(agent, run.max_memory),
+                                time_steps=False)  # its memory is flat however long it runs (soak.py)
     if checkpoint is not None:
         checkpoint = _restore(folder, checkpoint, env, agent, collector)
     folder.truncate_csv(0 if checkpoint is None else int(checkpoint["csv_bytes"]))  # rows past it come again
