@@ -132,3 +132,14 @@ def test_time_per_step_is_the_wall_time_the_console_prints_and_legends_name_agen
     (c / "config.json").unlink()
     assert default_labels([load_run(a), load_run(b), load_run(c, need_config=False)]) == ["dgpq p", "dqn p", "again"]
     assert default_labels([load_run(b), load_run(b)]) == [b.name, b.name]  # the same label twice: the folders'
+
+
+def test_runs_sharing_agent_and_preset_are_told_apart_by_folder(tmp_path):
+    """Two DQN runs of one task (the compare sweep's 20,000-step and zoo-budget runs) must not both
+    read "dqn p" in the table."""
+    a = fake_run(tmp_path / "cartpole-dqn", "square", {0: [40] * 5})
+    b = fake_run(tmp_path / "cartpole-dqn-zoo", "square", {0: [30] * 5})
+    c = fake_run(tmp_path / "cartpole-dgpq", "square", {0: [20] * 5}, agent="dgpq")
+    _, text = report([a, b, c], None, tmp_path / "out", budget=200)
+    assert "| dqn p (cartpole-dqn) | 1 |" in text and "| dqn p (cartpole-dqn-zoo) | 1 |" in text
+    assert "| dgpq p | 1 |" in text

@@ -115,6 +115,12 @@ def kernel_fits_cell(run) -> str:
     return "0" if run.agent == "dgpq" else "–"  # DGPQ with RBF trains no kernel
 
 
+def default_labels(runs) -> list:
+    """Each run's agent and preset; where two runs share those, their folder names too."""
+    names = [f"{run.agent} {run.preset}" for run in runs]
+    return [f"{n} ({run.path.name})" if names.count(n) > 1 else n for n, run in zip(names, runs)]
+
+
 def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
     """Figures and the markdown table; returns (written paths, markdown text). ``labels``:
     one per run, or None for each run's agent and preset."""
@@ -122,7 +128,7 @@ def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
 
     from .figures import save
     loaded = [load_run(r) for r in runs]
-    labels = labels or [f"{run.agent} {run.preset}" for run in loaded]
+    labels = labels or default_labels(loaded)
     groups = {}  # runs on the same env with the same env settings
     for run, label in zip(loaded, labels):
         groups.setdefault((run.env, json.dumps(run.config["env"], sort_keys=True)), []).append((label, run))
