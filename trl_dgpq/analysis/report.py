@@ -115,10 +115,16 @@ def kernel_fits_cell(run) -> str:
     return "0" if run.agent == "dgpq" else "–"  # DGPQ with RBF trains no kernel
 
 
+def group_key(run) -> tuple:
+    """Runs on the same env with the same env settings share a table and a figure."""
+    return run.env, json.dumps(run.config["env"], sort_keys=True)
+
+
 def default_labels(runs) -> list:
-    """Each run's agent and preset; where two runs share those, their folder names too."""
-    names = [f"{run.agent} {run.preset}" for run in runs]
-    return [f"{n} ({run.path.name})" if names.count(n) > 1 else n for n, run in zip(names, runs)]
+    """Each run's agent and preset; where two runs of a group share those, their folder names too."""
+    keys = [(group_key(run), run.agent, run.preset) for run in runs]
+    return [f"{run.agent} {run.preset}" + (f" ({run.path.name})" if keys.count(k) > 1 else "")
+            for k, run in zip(keys, runs)]
 
 
 def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
@@ -129,9 +135,9 @@ def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
     from .figures import save
     loaded = [load_run(r) for r in runs]
     labels = labels or default_labels(loaded)
-    groups = {}  # runs on the same env with the same env settings
+    groups = {}
     for run, label in zip(loaded, labels):
-        groups.setdefault((run.env, json.dumps(run.config["env"], sort_keys=True)), []).append((label, run))
+        groups.setdefault(group_key(run), []).append((label, run))
     out.mkdir(parents=True, exist_ok=True)
     written, lines = [], ["# Environment steps to a threshold, and performance at a budget", ""]
     task_scores = {}  # {agent: {task: higher-is-better scores at budget}}, for the profiles
