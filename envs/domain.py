@@ -89,6 +89,10 @@ class Domain:
         """(CSV column, label) of what curves of this domain show (default: the return)."""
         return getattr(self.analysis(), "MEASURE", ("return", "return per episode"))
 
+    def lower_is_better(self, env_id: Optional[str] = None) -> bool:
+        """Whether less of ``measure`` is better (``MEASURE_LOWER_IS_BETTER``; default: more is)."""
+        return bool(getattr(self.analysis(), "MEASURE_LOWER_IS_BETTER", False))
+
     def threshold(self, env_id: Optional[str] = None):
         """The ``trl_dgpq.analysis.Threshold`` a learner must meet here (None: not defined)."""
         return getattr(self.analysis(), "THRESHOLD", None)

@@ -144,3 +144,14 @@ def test_runs_sharing_agent_and_preset_are_told_apart_by_folder(tmp_path):
     _, text = report([a, b, c, d], None, tmp_path / "out", budget=200)
     assert "| dqn p (cartpole-dqn) | 1 |" in text and "| dqn p (cartpole-dqn-zoo) | 1 |" in text
     assert text.count("| dgpq p | 1 |") == 2             # one per task: nothing to tell apart
+
+
+def test_at_budget_direction_is_the_measures_not_the_thresholds(tmp_path):
+    """Push: the threshold is success (more is better), the measure steps per episode (fewer is
+    better). DGPQ at 10 steps per episode against DQN at 30 improves on it with probability 1."""
+    dgpq = fake_run(tmp_path / "g", "push", {s: [10] * 12 for s in range(3)}, agent="dgpq")
+    dqn = fake_run(tmp_path / "q", "push", {s: [30] * 12 for s in range(3)})
+    for run in (dgpq, dqn):  # push's own column for its threshold
+        pd.read_csv(run / "episodes.csv").assign(success=True).to_csv(run / "episodes.csv", index=False)
+    _, text = report([dgpq, dqn], None, tmp_path / "out", budget=400)
+    assert "at budget 1.00 [1.00, 1.00]" in text, text

@@ -14,6 +14,7 @@ from .almgren_chriss import ACModel
 from .env import LiquidationConfig
 
 MEASURE = ("implementation_shortfall", "implementation shortfall ($)")
+MEASURE_LOWER_IS_BETTER = True  # the at-budget scores (report: IQM, P(improvement), profiles) are negated
 TERMINATED = "no shares left"
 DEFAULT_LAST = 1000  # episodes at the end that the comparison table uses
 

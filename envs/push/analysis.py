@@ -9,6 +9,7 @@ import numpy as np
 from trl_dgpq.analysis import Threshold, kernel_fits_per_seed, ms_per_seed_step
 
 MEASURE = ("steps", "steps per episode")
+MEASURE_LOWER_IS_BETTER = True  # the at-budget scores (report: IQM, P(improvement), profiles) are negated
 TERMINATED = "the block reached the goal or fell off the table"
 THRESHOLD = Threshold("success", ">=", 0.9, 10, "success in >= 90 % of 10 episodes")
 DEFAULT_LAST = 20  # episodes at the end that the table uses

@@ -10,6 +10,7 @@ from trl_dgpq.analysis import Threshold, agree, kernel_fits_per_seed, median_ste
 
 
 MEASURE = ("steps", "steps per episode")
+MEASURE_LOWER_IS_BETTER = True  # the at-budget scores (report: IQM, P(improvement), profiles) are negated
 TERMINATED = "reached the goal"
 THRESHOLD = Threshold("steps", "<=", 25, 10, "mean steps per episode <= 25 over 10 episodes")
 

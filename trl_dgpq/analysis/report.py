@@ -18,7 +18,8 @@ confidence interval (``stats.py``, by ``rliable``); for steps to threshold a see
 never met it counts as the budget (so that IQM is a lower bound). Under the table, the
 probability that a DGPQ run improves on a DQN run of the same task, with its CI; and
 ``profiles.png``, rliable's performance profiles of each agent over every task it ran
-(at-budget scores, each task scaled to [0, 1] by the lowest and highest any run had).
+(at-budget scores, each task scaled to [0, 1] by the worst and best any run had; an
+agent with several runs on a task is represented by the first given).
 """
 from __future__ import annotations
 
@@ -68,7 +69,7 @@ def fmt_iqm(values, digits: str = ".4g") -> str:
     return "–" if np.isnan(point) else f"{point:{digits}} [{lo:{digits}}, {hi:{digits}}]"
 
 
-def improvement_lines(scored, threshold) -> list:
+def improvement_lines(scored, threshold, lower: bool) -> list:
     """P(DGPQ run improves on DQN run), per pair on this task: on steps to threshold (fewer
     is better) and at budget (the domain's direction)."""
     lines = []
@@ -81,7 +82,7 @@ def improvement_lines(scored, threshold) -> list:
                 cells.append("steps to threshold {:.2f} [{:.2f}, {:.2f}]".format(
                     *probability_of_improvement(-x_steps, -y_steps)))
             cells.append("at budget {:.2f} [{:.2f}, {:.2f}]".format(
-                *probability_of_improvement(oriented(x_at, threshold), oriented(y_at, threshold))))
+                *probability_of_improvement(oriented(x_at, lower), oriented(y_at, lower))))
             lines.append(f"- P({x_label} improves on {y_label}), 95 % CI: " + "; ".join(cells) + ".")
     return lines
 
@@ -146,6 +147,7 @@ def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
         name = group_name(env, first.config["env"], [json.loads(k[1]) for k in groups if k[0] == env])
         column, ylabel = first.domain.measure(first.env_id)
         threshold = first.domain.threshold(first.env_id)
+        lower = first.domain.lower_is_better(first.env_id)
         b = budget or default_budget(entries)
         lines += [f"## {name}", "",
                   f"Budget: {b:,} environment steps per seed. Threshold: "
@@ -164,7 +166,8 @@ def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
             at = at_budget(df, column, b, window)
             censored = steps.fillna(b).to_numpy() if threshold else None  # never: the budget
             scored.append((label, run, censored, at.to_numpy()))
-            task_scores.setdefault(run.agent, {})[name] = oriented(at.dropna().to_numpy(), threshold)
+            # an agent with several runs on a task (two kernels, two budgets): its first run given
+            task_scores.setdefault(run.agent, {}).setdefault(name, oriented(at.dropna().to_numpy(), lower))
             lines.append(f"| {label} | {df.seed.nunique()} | {fmt_steps(steps) if threshold else '–'} "
                          f"| {fmt_iqm(censored, ',.0f') if threshold else '–'} | {fmt_band(at)} | {fmt_iqm(at)} "
                          f"| {kernel_fits_cell(run)} | {ms_per_seed_step(df):.2f} |")
@@ -181,7 +184,7 @@ def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
         ax.set_title(f"{name}: median and IQR over seeds", fontsize=10)
         ax.legend(fontsize=8)
         written.append(save(fig, out / f"compare-{re.sub(r'[^A-Za-z0-9.=_-]+', '-', name).strip('-')}.png"))
-        lines += ["", *improvement_lines(scored, threshold), ""]
+        lines += ["", *improvement_lines(scored, threshold, lower), ""]
     profile = profile_figure(task_scores, out)
     if profile is not None:
         written.append(profile)

@@ -4,7 +4,7 @@ confidence interval, the probability of improvement, and performance profiles.
 
 Bootstraps use fixed random numbers (``_quiet``), so a report is the same every time it
 is drawn. Scores are "higher is better" where a comparison needs a direction: a domain
-whose threshold is "<=" (fewer steps, lower cost) is negated first (``oriented``).
+where less is better (fewer steps, lower cost) is negated first (``oriented``).
 """
 from __future__ import annotations
 
@@ -40,10 +40,10 @@ def _quiet(estimate):
     return quiet
 
 
-def oriented(values: np.ndarray, threshold) -> np.ndarray:
-    """``values`` as higher-is-better scores: negated where the domain's threshold is "<="."""
+def oriented(values: np.ndarray, lower_is_better: bool) -> np.ndarray:
+    """``values`` as higher-is-better scores: negated where less is better (fewer steps, lower cost)."""
     values = np.asarray(values, dtype=float)
-    return -values if threshold is not None and threshold.op == "<=" else values
+    return -values if lower_is_better else values
 
 
 @_quiet
