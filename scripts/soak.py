@@ -12,7 +12,7 @@ stretches); and the agent's storage (Q̂ pairs, GP points per seed) over the sam
 which grows as the agent learns and accounts for part of the RSS. The last sample,
 taken while the process exits, is left out. ``soak.json`` keeps every sample.
 
-    square       DGPQ "shaped", 1,024 seeds x 50 episodes (Q̂ and the sparse GPs fill, then
+    square       DGPQ "shaped", 1,024 seeds x 200 episodes (Q̂ and the sparse GPs fill, then
                  reach their steady size)
     liquidation  DGPQ "shortfall" with the sparse GP, 1 seed x 20,000 episodes
 """
@@ -31,7 +31,7 @@ import pandas as pd
 
 ROOT = Path(__file__).resolve().parent.parent
 SOAKS = {
-    "square": ["--seeds", "1024", "--yes", "--episodes", "50"],
+    "square": ["--seeds", "1024", "--yes", "--episodes", "200"],
     "liquidation": ["--env", "liquidation", "--agent", "dgpq", "--gp", "sparse", "--seeds", "1", "--episodes", "20000"],
 }
 
