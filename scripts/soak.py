@@ -12,8 +12,8 @@ stretches); and the agent's storage (Q̂ pairs, GP points per seed) over the sam
 which grows as the agent learns and accounts for part of the RSS. The last sample,
 taken while the process exits, is left out. ``soak.json`` keeps every sample.
 
-    square       DGPQ "shaped", 1,024 seeds x 200 episodes (Q̂ and the sparse GPs fill, then
-                 reach their steady size)
+    square       DGPQ "shaped", 1,024 seeds x 200 episodes (Q̂ grows while it learns; its
+                 storage doubling shows as steps in RSS)
     liquidation  DGPQ "shortfall" with the sparse GP, 1 seed x 20,000 episodes
 """
 from __future__ import annotations
