@@ -79,6 +79,7 @@ class OnlineCollector:
         self.active = torch.ones(S, dtype=torch.bool)
         self.stopped_at = torch.full((S,), -1, dtype=torch.long)  # the batched step a seed stopped at; -1 active
         self.total = 0      # batched steps so far
+        self.stopped_now = False  # seeds stopped in the step just taken
         self.td = None      # the current observation TensorDict (None: reset first)
 
     @property
@@ -109,7 +110,7 @@ class OnlineCollector:
         while self.active.any() and (self.max_total_steps is None or steps_here < self.max_total_steps):
             if self.before_step is not None:
                 self.before_step()
-            active = self.active
+            active, self.stopped_now = self.active, False
             t0, c0 = time.perf_counter(), time.process_time()
             td.set("action", agent.act(td))
             td, td_next = env.step_and_maybe_reset(td)
@@ -189,7 +190,9 @@ class OnlineCollector:
         self.active &= self.episode < self.episodes
         if self.env_steps:  # only at the end of a seed's own episode
             self.active &= ~(ended & (self.env_steps_done >= self.env_steps))
-        self.stopped_at[was_active & ~self.active] = self.total
+        stopped = was_active & ~self.active
+        self.stopped_at[stopped] = self.total
+        self.stopped_now = bool(stopped.any())
         return rows
 
     @property
@@ -197,8 +200,9 @@ class OnlineCollector:
         """Seeds stopped in the step just taken, and none before (-2: at a step unknown): the
         state from which every stopped seed can be continued exactly. (A seed that stays
         stopped when a run is lengthened keeps this state the one to continue from.)"""
-        earlier = (self.stopped_at != -1) & (self.stopped_at < self.total)
-        return bool((self.stopped_at == self.total).any()) and not bool(earlier.any())
+        if not self.stopped_now:  # (checked after every step: the tensors only when a seed stopped)
+            return False
+        return not bool(((self.stopped_at != -1) & (self.stopped_at < self.total)).any())
 
     def to_continue(self) -> torch.Tensor:
         """Stopped seeds that ``episodes`` and ``env_steps`` (lengthened since) say go on."""
