@@ -23,7 +23,7 @@ import torch
 from trl_dgpq.agents.base import ScriptedAgent
 from trl_dgpq.config import setting
 
-from .dynamics import V_T0, climb_rate, discretise
+from .dynamics import V_T0, climb_rate, discretise, rows_times
 
 
 def lqr_gain(a: torch.Tensor, b: torch.Tensor, q: torch.Tensor, r: float, iterations: int = 20_000) -> torch.Tensor:
@@ -80,7 +80,7 @@ class LQRPolicy(ElevatorLaw):
         return cls(cfg, env.elevator_deg, lqr_gain(a, b, q, cfg.r))
 
     def command(self, x):
-        return -(x @ self.gain)
+        return -rows_times(x, self.gain[:, None])[:, 0]
 
 
 @dataclass

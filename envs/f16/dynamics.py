@@ -45,3 +45,13 @@ def discretise(dt: float) -> tuple:
 def climb_rate(state: torch.Tensor) -> torch.Tensor:
     """ḣ (ft/s) of states (..., 5)."""
     return V_T0 * (state[..., 3] - state[..., 2])
+
+
+def rows_times(x: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+    """``x @ m`` for a batch of rows (seeds), each row's result independent of the others
+    bit for bit: a matrix product's kernel (and so its rounding) can change with the number
+    of rows, which made a seed's flight depend on its batch on some CPUs."""
+    out = x[:, 0, None] * m[0]
+    for j in range(1, x.shape[1]):
+        out = out + x[:, j, None] * m[j]
+    return out

@@ -40,7 +40,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from trl_dgpq.config import setting
 
 from ..base import SeedBatchedEnv
-from .dynamics import climb_rate, discretise
+from .dynamics import climb_rate, discretise, rows_times
 
 
 @dataclass
@@ -105,7 +105,7 @@ class F16Env(SeedBatchedEnv):
     def _transition(self, action):
         c = self.cfg
         e = self.elevator(action)
-        x = self.state @ self.ad.T + (e * c.elevator_deg)[:, None] * self.bd
+        x = rows_times(self.state, self.ad.T) + (e * c.elevator_deg)[:, None] * self.bd
         noise = self.rng.normal(2)                                       # the seed's own stream
         x[:, 1] += c.noise_v * noise[:, 0]
         x[:, 2] += c.noise_alpha * noise[:, 1]
