@@ -229,7 +229,8 @@ class OnlineCollector:
 
     def load_state_dict(self, state: dict) -> None:
         # what older checkpoints lack: no budget yet; where seeds stopped unknown (-2: cannot be continued)
-        state = {"env_steps_done": torch.zeros_like(self.steps), "stopped_at": torch.where(state["active"], -1, -2), **state}
+        state = {"env_steps_done": torch.zeros_like(self.steps),
+                 "stopped_at": torch.where(state["active"], -1, -2), **state}
         for name in self.ACCUMULATORS:
             if state[name].shape != getattr(self, name).shape:
                 raise ValueError(f"collector state is for {state[name].shape[0]} seeds, not {len(self.seeds)}")

@@ -428,12 +428,13 @@ def lengthen(folder: RunFolder, config: dict, **lengths) -> dict:
     # status first: a kill before the config is written leaves a run that --resume finishes as it was
     folder.set_status("interrupted", reason=f"lengthening: {what}", episodes_done=(folder.status() or {})
                       .get("episodes_done"))
+    now = {k: b for k, (a, b) in changed.items()}
     recorded = folder.read_json(CONFIG)
-    recorded["run"] = {**recorded["run"], **{k: b for k, (a, b) in changed.items()}}
+    recorded["run"] = {**recorded["run"], **now}
     recorded.setdefault("lengthened", []).append(dict(time=time.strftime("%Y-%m-%d %H:%M:%S"), **{
         k: dict(was=a, now=b) for k, (a, b) in changed.items()}, **provenance()))
     folder.write_json(CONFIG, recorded)
-    return {**config, "run": {**config["run"], **{k: b for k, (a, b) in changed.items()}}}
+    return {**config, "run": {**config["run"], **now}}
 
 
 def resume(folder: RunFolder, config: dict, progress: bool = True) -> pd.DataFrame:
