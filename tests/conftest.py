@@ -1,11 +1,23 @@
 import io
 import os
+import random
 import signal
 
+import numpy as np
 import pytest
 import torch
 
 from trl_dgpq.collectors import runner
+
+
+@pytest.fixture(autouse=True)
+def seeded_global_generators():
+    """Every test starts torch's, numpy's and Python's global generators from one seed: a test that
+    draws from them (random test data, a library that samples) fails or passes the same way every
+    run, never by chance (one such test caught its bug about 7 times in 40)."""
+    torch.manual_seed(20141332)
+    np.random.seed(20141332)
+    random.seed(20141332)
 
 
 def through_disk(state):

@@ -1,6 +1,8 @@
 """DQN from TorchRL parts: its schedule (learning starts, train frequency, epsilon, target
 copies) by hand count, its TD target by hand, greedy actions from each seed's own
 network, refusals. (Seed independence and the shared parts: test_neural.py.)"""
+import copy
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -21,42 +23,148 @@ def transition(obs_dim=3, n=1, terminated=False, truncated=False):
                                 "done": flag | truncated, "terminated": flag.clone()}}, batch_size=[n])
 
 
-def trace(cfg, steps, read, seeds=(0,)):
-    """``read(agent)`` after each of ``steps`` transitions given to a fresh agent."""
-    agent = DQN(cfg, list(seeds), 3, 2)
+def sb3_schedule(total, learning_starts, train_freq, gradient_steps, target_update_interval, exploration_fraction,
+                 eps_start=1.0, eps_end=0.05):
+    """Stable-Baselines3's DQN schedule for one env, transcribed from its source (2.x:
+    ``OffPolicyAlgorithm.learn`` / ``collect_rollouts`` / ``_sample_action``, ``DQN._on_step``,
+    ``get_linear_fn``), independent of ours. Returns per env step t = 1..total: (how the action
+    was chosen: "random" or the epsilon it was drawn with, [events after the env step in order])."""
+    def linear(progress_remaining):  # get_linear_fn(eps_start, eps_end, exploration_fraction)
+        done = 1 - progress_remaining
+        return eps_end if done > exploration_fraction else eps_start + done * (eps_end - eps_start) / exploration_fraction
+    num_timesteps, n_calls, exploration_rate, out = 0, 0, 0.0, []
+    while num_timesteps < total:
+        for _ in range(train_freq):  # collect_rollouts: train_freq steps
+            how = "random" if num_timesteps < learning_starts else exploration_rate
+            num_timesteps += 1
+            progress_remaining = 1.0 - num_timesteps / total
+            n_calls += 1  # _on_step
+            events = ["copy"] if n_calls % max(target_update_interval, 1) == 0 else []
+            exploration_rate = linear(progress_remaining)
+            out.append((how, events))
+        if num_timesteps > 0 and num_timesteps > learning_starts:  # train after the rollout
+            out[-1][1].extend(["update"] * (gradient_steps if gradient_steps >= 0 else train_freq))
+    return out[:total]
+
+
+def our_schedule(cfg, total):
+    """The same trace of our DQN: how each action was chosen, then what each step did."""
+    agent = DQN(cfg, [0], 3, 2)
+    events = []
+    agent.target.copy_ = (lambda copy: lambda: (events.append("copy"), copy()))(agent.target.copy_)
+    agent.update = (lambda update: lambda batch: (events.append("update"), update(batch)))(agent.update)
     out = []
-    for _ in range(steps):
-        agent.observe(transition(n=len(seeds)))
-        out.append(read(agent))
+    for _ in range(total):
+        how = "random" if agent.steps < cfg.learning_starts else agent.eps
+        agent.observe(transition())
+        out.append((how, list(events)))
+        events.clear()
     return out
 
 
-def target_equals_online(agent):
-    return all(torch.equal(p, q) for p, q in zip(agent.qnet.parameters(), agent.target.parameters()))
+@pytest.mark.parametrize("zoo", [
+    # CartPole-v1's zoo settings at a tenth of the budget; Acrobot-v1's (gradient_steps -1, learning
+    # starts 0) and MountainCar-v0's; and a case where train_freq does not divide learning_starts
+    dict(total=5_000, learning_starts=1_000, train_freq=256, gradient_steps=128, target_update_interval=10,
+         exploration_fraction=0.16, eps_end=0.04),
+    dict(total=600, learning_starts=0, train_freq=4, gradient_steps=-1, target_update_interval=250,
+         exploration_fraction=0.12, eps_end=0.1),
+    dict(total=1_500, learning_starts=100, train_freq=16, gradient_steps=8, target_update_interval=60,
+         exploration_fraction=0.2, eps_end=0.07),
+    dict(total=100, learning_starts=10, train_freq=3, gradient_steps=2, target_update_interval=7,
+         exploration_fraction=0.5, eps_end=0.2),
+])
+def test_schedule_is_stable_baselines3s(zoo):
+    """Random actions before learning_starts, epsilon after each step as SB3's linear schedule
+    over exploration_fraction of the budget, target copies every target_update_interval env steps
+    and before that step's updates, gradient_steps updates every train_freq-th step once more than
+    learning_starts steps are taken -- step by step as SB3's own loop. (SB3's very first action,
+    with learning_starts 0, is greedy: its exploration_rate is 0 until the first step; ours is
+    eps_init. That one action is left out.)"""
+    z = dict(zoo)
+    total, fraction = z.pop("total"), z.pop("exploration_fraction")
+    ours_z = dict(z, gradient_steps=z["train_freq"] if z["gradient_steps"] == -1 else z["gradient_steps"])
+    cfg = DQNConfig(hidden=(8,), batch_size=4, buffer_size=10_000, eps_init=1.0,
+                    exploration_steps=int(fraction * total), **ours_z)
+    ours = our_schedule(cfg, total)
+    sb3 = sb3_schedule(total, z["learning_starts"], z["train_freq"], z["gradient_steps"],
+                       z["target_update_interval"], fraction, eps_end=z["eps_end"])
+    if z["learning_starts"] == 0:
+        ours, sb3 = ours[1:], sb3[1:]
+    assert [events for _, events in ours] == [events for _, events in sb3]
+    for (how, _), (expect, _) in zip(ours, sb3):
+        assert how == expect if expect == "random" else how == pytest.approx(expect, abs=1e-12)
 
 
-def test_updates_start_and_repeat_on_schedule():
-    """learning_starts 10, batch 4, train_freq 3, gradient_steps 2: updates at steps 12, 15, 18, ...
-    (multiples of 3 once 10 transitions are stored), two each."""
-    cfg = DQNConfig(hidden=(8,), batch_size=4, buffer_size=50, learning_starts=10, train_freq=3, gradient_steps=2,
-                    target_update_interval=1000)
-    counts = trace(cfg, 20, lambda agent: int(agent.updates[0]))
-    expect = [2 * sum(1 for k in range(1, n + 1) if k % 3 == 0 and k >= 10) for n in range(1, 21)]
-    assert counts == expect and counts[-1] == 6
+def test_stacked_learner_follows_a_plain_per_seed_dqn():
+    """Three seeds learning as one equal three plain one-seed DQNs written here with torch alone
+    (nn.Linear, F.smooth_l1_loss, clip_grad_norm_, Adam, the SB3 schedule above), each fed the
+    minibatches the stacked learner drew for that seed -- which must be that seed's own
+    transitions --, over 150 updates with clipping biting: the weights agree to float32
+    rounding. Any coupling of seeds (a mean over seeds, a shared clip, a shared Adam state),
+    a target copied at other times, or another loss moves them apart."""
+    cfg = DQNConfig(hidden=(16,), lr=3e-3, batch_size=8, buffer_size=64, learning_starts=10, train_freq=2,
+                    gradient_steps=3, target_update_interval=7, max_grad_norm=0.3, gamma=0.9)
+    seeds, S, steps = [0, 3, 7], 3, 110
+    agent = DQN(cfg, seeds, 3, 2)
+    g = torch.Generator().manual_seed(0)
+    data = [transition(n=S) for _ in range(steps)]
+    for t in data:  # rewards that depend on the action, so that the networks learn something
+        t["next", "reward"] = (t["action"][:, None] == (t["observation"][:, :1] > 0.5)).float() \
+            + 0.1 * torch.randn(S, 1, generator=g)
+    drawn = []
+    agent.update = (lambda update: lambda batch: (drawn.append(batch.clone()), update(batch)))(agent.update)
+    (w1, b1), (w2, b2) = [(layer.weight.detach().clone(), layer.bias.detach().clone())
+                          for layer in (agent.qnet.net[0], agent.qnet.net[2])]
+    for t in data:
+        agent.observe(t.clone())
+    assert len(drawn) == 3 * sum(1 for k in range(1, steps + 1) if k % 2 == 0 and k > 10) == 150
+
+    for i in range(S):
+        own = torch.cat([torch.cat([t["observation"][i], t["action"][i:i + 1].float(), t["next", "reward"][i]])
+                         for t in data])
+        online = nn.Sequential(nn.Linear(3, 16), nn.ReLU(), nn.Linear(16, 2))
+        with torch.no_grad():
+            for layer, w, b in ((online[0], w1, b1), (online[2], w2, b2)):
+                layer.weight.copy_(w[i].T)
+                layer.bias.copy_(b[i])
+        target = copy.deepcopy(online)
+        optim = torch.optim.Adam(online.parameters(), lr=3e-3)
+        batches = iter(batch[i] for batch in drawn)
+        for step in range(1, steps + 1):
+            if step % 7 == 0:
+                target.load_state_dict(online.state_dict())
+            if step % 2 or step <= 10:
+                continue
+            for _ in range(3):
+                b = next(batches)
+                rows = torch.cat([b["observation"], b["action"][:, None].float(), b["next", "reward"]], 1)
+                assert all(((own.view(steps, 5) - row).abs().sum(1) == 0).any() for row in rows)  # its own data
+                q = online(b["observation"]).gather(1, b["action"][:, None])[:, 0]
+                with torch.no_grad():
+                    y = b["next", "reward"][:, 0] + 0.9 * (~b["next", "terminated"][:, 0]) * \
+                        target(b["next", "observation"]).max(1).values
+                optim.zero_grad()
+                nn.functional.smooth_l1_loss(q, y).backward()
+                nn.utils.clip_grad_norm_(online.parameters(), 0.3)
+                optim.step()
+        torch.testing.assert_close(agent.qnet.net[0].weight[i].T, online[0].weight, rtol=1e-4, atol=1e-5)
+        torch.testing.assert_close(agent.qnet.net[2].bias[i], online[2].bias, rtol=1e-4, atol=1e-5)
+        torch.testing.assert_close(agent.target.net.net[2].weight[i].T, target[2].weight, rtol=1e-4, atol=1e-5)
 
 
-def test_no_update_before_a_minibatch_is_stored():
-    """learning_starts 0, batch 4, every step: the first update is at step 4 (not from one stored
-    transition sampled four times)."""
-    cfg = DQNConfig(hidden=(8,), batch_size=4, buffer_size=50, learning_starts=0, train_freq=1, gradient_steps=1)
-    assert trace(cfg, 8, lambda agent: int(agent.updates[0])) == [0, 0, 0, 1, 2, 3, 4, 5]
-
-
-def test_epsilon_falls_linearly_then_stays():
-    cfg = DQNConfig(hidden=(8,), batch_size=4, buffer_size=50, learning_starts=1000, eps_init=1.0, eps_end=0.2,
-                    exploration_steps=8)
-    eps = trace(cfg, 12, lambda agent: round(agent.eps, 12))
-    assert eps == [0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.2, 0.2, 0.2, 0.2]
+def test_warm_up_actions_are_random_then_greedy_at_epsilon_zero():
+    """learning_starts 30, epsilon 0: the first 30 actions are uniform draws (both actions occur,
+    not only the greedy one), every later one is the greedy action."""
+    cfg = DQNConfig(hidden=(8,), batch_size=4, buffer_size=100, learning_starts=30, eps_init=0.0, eps_end=0.0,
+                    target_update_interval=1000, train_freq=1000)
+    agent = DQN(cfg, list(range(8)), 3, 2)
+    td = TensorDict({"observation": torch.rand(8, 3)}, batch_size=[8])
+    same = []
+    for _ in range(40):
+        same.append(bool((agent.act(td) == agent.greedy(td["observation"])).all()))
+        agent.observe(transition(n=8))
+    assert not all(same[:30]) and all(same[30:])
 
 
 def test_exploration_takes_random_actions_at_the_rate_epsilon():
@@ -69,13 +177,17 @@ def test_exploration_takes_random_actions_at_the_rate_epsilon():
     assert abs(float(differ) - 0.15) < 0.01
 
 
-def test_target_network_copies_every_interval_steps():
-    cfg = DQNConfig(hidden=(8,), batch_size=2, buffer_size=50, learning_starts=2, train_freq=1, gradient_steps=1,
-                    target_update_interval=4, lr=0.05)
-    equal = trace(cfg, 12, target_equals_online)
-    # equal from the start until the first update (step 2); copied at env steps 4, 8, 12 (after that
-    # step's update); learning changes the online net in between
-    assert [i + 1 for i, e in enumerate(equal) if e] == [1, 4, 8, 12]
+def test_target_copy_goes_from_online_to_target():
+    """After a copy the target holds what the online network held, and the online network is
+    unchanged (a copy the wrong way round also leaves the two equal)."""
+    agent = DQN(DQNConfig(hidden=(8,)), [0, 1], 3, 2)
+    with torch.no_grad():
+        for p in agent.target.parameters():
+            p.mul_(0.5)
+    online = [p.clone() for p in agent.qnet.parameters()]
+    agent.target.copy_()
+    assert all(torch.equal(p, q) for p, q in zip(agent.qnet.parameters(), online))
+    assert all(torch.equal(p, q) for p, q in zip(agent.target.parameters(), online))
 
 
 def test_td_target_by_hand_and_as_torchrls_dqn_loss():
@@ -140,7 +252,7 @@ def test_clipping_reaches_the_optimiser(clip, moved):
                     max_grad_norm=clip)
     agent = DQN(cfg, [0], 3, 2)
     before = [p.clone() for p in agent.qnet.parameters()]
-    for _ in range(4):
+    for _ in range(5):  # the first update after the 5th step (more than learning_starts)
         agent.observe(transition())
     assert int(agent.updates[0]) == 1
     step = max(float((p - b).abs().max()) for p, b in zip(agent.qnet.parameters(), before))

@@ -1,18 +1,27 @@
-"""DQN (Mnih et al. 2015) with Stable-Baselines3's schedule: a Q-network (TorchRL's
-``MLP``, ReLU), the Huber loss of TD(0) targets from a target network (as TorchRL's
-``DQNLoss``, tested equal), the target copied from the online network every
-``target_update_interval`` env steps (as ``HardUpdate``), Adam with the gradient norm
+"""DQN (Mnih et al. 2015) as Stable-Baselines3 runs it: a Q-network (TorchRL's ``MLP``,
+ReLU), the Huber loss of TD(0) targets from a target network (as TorchRL's ``DQNLoss``,
+tested equal), Adam (torch's defaults, eps 1e-8, as SB3's DQN) with the gradient norm
 clipped at ``max_grad_norm``; epsilon-greedy with epsilon annealed linearly from
 ``eps_init`` to ``eps_end`` over ``exploration_steps`` env steps.
 
 All seeds learn as one (``neural``: the Q-networks stacked over seeds, per-seed
-losses, clipping, replay and random streams; why the loss is not ``DQNLoss`` itself). Per env step of the active seeds:
-act epsilon-greedily, store the transition, count the step; once ``learning_starts``
-steps are taken and a minibatch is stored, every ``train_freq``-th step makes
-``gradient_steps`` updates on minibatches of ``batch_size`` per seed.
+losses, clipping, replay and random streams; why the loss is not ``DQNLoss`` itself).
+The schedule is SB3's (``DQN._on_step``, ``OffPolicyAlgorithm.collect_rollouts`` and
+``_sample_action``; tests/test_dqn.py transcribes it and checks ours against it). Per
+env step t = 1, 2, ... of the active seeds:
 
-Observations are the env's (the gym envs' are already in the unit box); a discrete
-action spec is required (liquidation: ``action_levels`` > 0).
+- act: uniformly at random while fewer than ``learning_starts`` steps are taken (SB3's
+  warm-up), else epsilon-greedily with epsilon after t - 1 steps;
+- store the transition, count the step;
+- every ``target_update_interval``-th step, copy the online network to the target
+  (counted in env steps, before this step's updates: SB3 copies in the rollout and
+  trains after it);
+- every ``train_freq``-th step, once t > ``learning_starts``, make ``gradient_steps``
+  updates on minibatches of ``batch_size`` drawn with replacement from what is stored
+  (SB3's ``gradient_steps = -1`` is ``train_freq`` here).
+
+Observations are the env's (the gym envs': raw for DQN's presets); a discrete action
+spec is required (liquidation: ``action_levels`` > 0).
 """
 from __future__ import annotations
 
@@ -38,7 +47,7 @@ class DQNConfig:
     lr: float = setting(6.3e-4, "Adam learning rate", within="(0, inf)")
     buffer_size: int = setting(50_000, "replay buffer capacity (transitions per seed)", within="[1, inf)")
     batch_size: int = setting(128, "minibatch size", within="[1, inf)")
-    learning_starts: int = setting(0, "env steps before the first update (and at least a minibatch stored)",
+    learning_starts: int = setting(0, "env steps of random actions before learning (updates once more are taken)",
                                    within="[0, inf)")
     train_freq: int = setting(4, "update every this many env steps", within="[1, inf)")
     gradient_steps: int = setting(4, "updates each time", within="[1, inf)")
@@ -92,12 +101,15 @@ class DQN(SeedBatchedLearner):
     def act(self, td) -> torch.Tensor:
         u = self.explore_rng.uniform(2)                           # (S, 2): explore?, which action
         random = (u[:, 1] * self.n_actions).long()
+        if self.steps < self.cfg.learning_starts:                 # SB3's warm-up: random actions only
+            return random
         return torch.where(u[:, 0] < self.eps, random, self.greedy(td.get("observation")))
 
     def wants_update(self) -> int:
         cfg = self.cfg
-        # from learning_starts on, once a minibatch is stored (SB3 samples with replacement before)
-        ready = self.steps >= cfg.learning_starts and len(self.replay) >= cfg.batch_size
+        # SB3 trains after a rollout of train_freq steps once num_timesteps > learning_starts,
+        # sampling with replacement from what is stored, however little
+        ready = self.steps > cfg.learning_starts
         return cfg.gradient_steps if ready and self.steps % cfg.train_freq == 0 else 0
 
     def td_loss(self, batch: TensorDict) -> torch.Tensor:
@@ -116,7 +128,7 @@ class DQN(SeedBatchedLearner):
         clip_grad_norm_per_seed(self.params, self.cfg.max_grad_norm)
         optim.step()
 
-    def after_step(self) -> None:
+    def before_updates(self) -> None:
         if self.steps % self.cfg.target_update_interval == 0:
             self.target.copy_()
 

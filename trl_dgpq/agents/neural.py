@@ -211,7 +211,7 @@ class SeedBatchedLearner:
     transition as stored, per-seed update counts, and freezing finished seeds.
     A subclass builds its networks (``nets``, targets included) and ``optimizers`` and
     defines ``act``, ``update(batch)`` (one gradient step for all seeds) and
-    ``wants_update()``."""
+    ``wants_update()``; ``before_updates()`` if it has per-step bookkeeping."""
 
     optimizers: List[torch.optim.Optimizer]
     nets: nn.ModuleDict
@@ -244,9 +244,9 @@ class SeedBatchedLearner:
         self.steps += 1
         n = self.wants_update()
         with keep_rows(self.learned_tensors, ~active):
+            self.before_updates()
             for _ in range(n):
                 self.update(self.replay.sample(self.batch_size))
-            self.after_step()
         self.updates += n * active
         self.new_episode = td.get("next").get("done").reshape(S).clone()
 
@@ -257,8 +257,9 @@ class SeedBatchedLearner:
     def update(self, batch: TensorDict) -> None:
         raise NotImplementedError
 
-    def after_step(self) -> None:
-        """Per env step bookkeeping after the updates (target copies)."""
+    def before_updates(self) -> None:
+        """Per env step bookkeeping after the step is counted, before its updates (DQN's
+        target copies, which SB3 makes in the rollout, before the rollout's training)."""
 
     def episode_stats(self) -> dict:
         return {"updates": self.updates.clone()}
