@@ -65,6 +65,52 @@ def test_cartpole_equals_plain_gymnasium_mapped_to_the_unit_box():
     env.close()
 
 
+@pytest.mark.parametrize("gym_id", ["CartPole-v1", "MountainCar-v0"])
+def test_raw_observations_are_gymnasiums_own(gym_id):
+    """observations="raw": seed 7's observations are gymnasium's reset(seed=7) trajectory itself
+    (no map onto the unit box, no clipping), across
+    an episode's end; the spec holds them (CartPole: unbounded, MountainCar: gymnasium's box)."""
+    actions = [(t // 3) % 2 * (2 if gym_id == "MountainCar-v0" else 1) for t in range(80)]
+    raw, _, terms = raw_trajectory(gym_id, 7, actions)
+    check_env_specs(env_class(f"gym:{gym_id}")([3, 7], observations="raw"), seed=None)
+    env = env_class(f"gym:{gym_id}")([3, 7], observations="raw")
+    td = env.reset()
+    for t, a in enumerate(actions):
+        np.testing.assert_array_equal(td["observation"][1].numpy(), raw[t].astype(np.float64))
+        td["action"] = torch.tensor([0, a])
+        _, td = env.step_and_maybe_reset(td)
+    assert (raw < 0).any() and (gym_id != "CartPole-v1" or terms.sum() >= 2)  # not the unit box; episodes end
+    env.close()
+
+
+def test_neural_agents_see_raw_observations_dgpq_the_unit_box():
+    """The gym presets: DQN on raw observations (its own presets and an id without any), DGPQ on
+    the unit box; the choice is recorded in the run's config."""
+    for gym_id in [*GYM_ENVS, "gym:CartPole-v0"]:
+        assert resolve_config(env=gym_id, agent="dqn")["env"]["observations"] == "raw", gym_id
+        assert resolve_config(env=gym_id, agent="dgpq")["env"]["observations"] == "unit", gym_id
+    assert resolve_config(env="gym:CartPole-v1", agent="dqn", preset="zoo")["env"]["observations"] == "raw"
+    with pytest.raises(ValueError, match="observations must be one of"):
+        resolve_config(env="gym:CartPole-v1", agent="dqn", observations="scaled")
+
+
+def test_zoo_presets_are_the_zoos_settings_in_our_names():
+    """The "zoo" DQN presets against rl-baselines3-zoo's dqn.yml as written there (by hand here):
+    epsilon over exploration_fraction of n_timesteps, SB3's gradient_steps -1 as train_freq."""
+    zoo = {"CartPole-v1": dict(lr=2.3e-3, batch_size=64, buffer_size=100_000, learning_starts=1_000, gamma=0.99,
+                               target_update_interval=10, train_freq=256, gradient_steps=128,
+                               exploration_steps=8_000, eps_end=0.04, hidden=(256, 256)),
+           "Acrobot-v1": dict(lr=6.3e-4, batch_size=128, buffer_size=50_000, learning_starts=0, gamma=0.99,
+                              target_update_interval=250, train_freq=4, gradient_steps=4, exploration_steps=12_000,
+                              eps_end=0.1, hidden=(256, 256)),
+           "MountainCar-v0": dict(lr=4e-3, batch_size=128, buffer_size=10_000, learning_starts=1_000, gamma=0.98,
+                                  target_update_interval=600, train_freq=16, gradient_steps=8,
+                                  exploration_steps=24_000, eps_end=0.07, hidden=(256, 256))}
+    for gym_id, expect in zoo.items():
+        agent = resolve_config(env=f"gym:{gym_id}", agent="dqn", preset="zoo")["agent"]
+        assert {k: agent[k] for k in expect} == {k: list(v) if k == "hidden" else v for k, v in expect.items()}, gym_id
+
+
 @pytest.mark.filterwarnings("ignore:.*out of date")
 def test_infinite_bounds_without_documented_ones_are_squashed():
     """CartPole-v0 has no BOUNDS entry: its finite dims (x +-4.8, theta +-0.4189) map affinely,

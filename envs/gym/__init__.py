@@ -18,9 +18,9 @@ class GymDomain(Domain):
         return tuple(f"{self.name}:{i}" for i in self.module("presets").PRESETS)
 
     def presets(self, agent: str, env_id: Optional[str] = None) -> dict:
-        """An id without presets of its own runs any agent with the defaults."""
+        """An id without presets of its own runs any agent with the defaults (DQN on raw observations)."""
         presets = self.module("presets")
-        return presets.PRESETS.get(env_id, {}).get(agent, {presets.DEFAULT: {}})
+        return presets.PRESETS.get(env_id, {}).get(agent, presets.FALLBACK.get(agent, {presets.DEFAULT: {}}))
 
     def preset_tables(self):
         for env_id, agents in self.module("presets").PRESETS.items():

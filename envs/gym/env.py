@@ -6,12 +6,17 @@ time and then draws from its own ``np_random``, so seed i alone is seed i in any
 batch. (TorchRL's ``SerialEnv`` seeds its members ``seed, seed + 1, ...`` from one
 number, which ties a seed's stream to its place in the batch.)
 
-Observations are mapped affinely onto the unit box [0, 1]^d and clipped to it, so
-that DGPQ's lengthscale and L_Q mean what they mean on the square. The bounds are
-``obs_low``/``obs_high`` when given, else ``BOUNDS`` below (documented per env where
-gymnasium's are infinite or far wider than what an episode visits), else the
-observation space's own; a dimension still unbounded is squashed by
-(1 + tanh x) / 2 instead. Actions are indices in [0, n). The step cap is gymnasium's
+Observations, as ``observations`` says: "unit" (the default, DGPQ's) maps them affinely
+onto the unit box [0, 1]^d and clips them to it, so that DGPQ's lengthscale and L_Q mean
+what they mean on the square. The bounds are ``obs_low``/``obs_high`` when given, else
+``BOUNDS`` below (documented per env where gymnasium's are infinite or far wider than
+what an episode visits), else the observation space's own; a dimension still unbounded
+is squashed by (1 + tanh x) / 2 instead. "raw" passes gymnasium's own observations
+through, as Stable-Baselines3 and the zoo feed their networks (the neural agents' gym
+presets): the unit box's clipping and squashing cost DQN most of CartPole (issue 27).
+A setting of the env rather than a TorchRL transform, so that it is recorded in
+config.json with the env's other settings, chosen by presets, and the env's specs stay
+built in one place. Actions are indices in [0, n). The step cap is gymnasium's
 ``max_episode_steps`` unless ``max_steps`` is set (gymnasium's own ``TimeLimit`` is
 built with the same cap, so the two never disagree).
 
@@ -69,6 +74,8 @@ class GymConfig:
                                              "gymnasium's)")
     obs_high: Tuple[float, ...] = setting((), "upper observation bounds mapped to 1 (empty: documented or "
                                               "gymnasium's)")
+    observations: str = setting("unit", "what the agent sees: 'unit' (mapped onto [0, 1]^d: DGPQ's lengthscale and "
+                                        "L_Q) or 'raw' (gymnasium's own, as SB3 and the zoo)", choices=("unit", "raw"))
 
     def cross_check(self) -> None:
         if len(self.obs_low) != len(self.obs_high):
@@ -114,7 +121,7 @@ def describe(gym_id: str):
 
 class GymSeedEnv(SeedBatchedEnv):
     """TorchRL env, ``batch_size=[len(seeds)]``, over one gymnasium id (``gym_env(id)``
-    makes the class); observations float64 ``(S, d)`` in the unit box."""
+    makes the class); observations float64 ``(S, d)``, in the unit box or raw."""
 
     Config = GymConfig
     gym_id: str = ""
@@ -163,10 +170,16 @@ class GymSeedEnv(SeedBatchedEnv):
 
     @classmethod
     def _specs(cls, cfg, S, device):
-        n, low, _, _ = describe(cls.gym_id)
-        observation = Composite(
-            observation=Bounded(0.0, 1.0, shape=(S, len(low)), dtype=torch.float64, device=device),
-            shape=(S,), device=device)
+        n, low, high, _ = describe(cls.gym_id)
+        d = len(low)
+        if cfg.observations == "unit":
+            spec = Bounded(0.0, 1.0, shape=(S, d), dtype=torch.float64, device=device)
+        elif np.isfinite(low).all() and np.isfinite(high).all():
+            spec = Bounded(torch.tensor(low).expand(S, d), torch.tensor(high).expand(S, d), shape=(S, d),
+                           dtype=torch.float64, device=device)
+        else:
+            spec = Unbounded(shape=(S, d), dtype=torch.float64, device=device)
+        observation = Composite(observation=spec, shape=(S,), device=device)
         return (observation, Categorical(n, shape=(S,), device=device),
                 Unbounded(shape=(S, 1), dtype=torch.float64, device=device))
 
@@ -183,13 +196,18 @@ class GymSeedEnv(SeedBatchedEnv):
         affine = (raw - self.offset) / self.span
         return torch.where(self.squash, 0.5 * (1 + torch.tanh(raw)), affine).clamp(0.0, 1.0)
 
+    def observed(self) -> torch.Tensor:
+        """What the agent sees of ``self.raw``: in the unit box, or gymnasium's own."""
+        obs = self.raw if self.cfg.observations == "raw" else self.to_unit_box(self.raw)
+        return obs.to(self.device, copy=True)
+
     def _initial(self, mask):
         for i in mask.nonzero()[:, 0].tolist():
             # the first reset seeds this instance's np_random; later ones continue it
             kwargs = {} if self.started[i] else {"seed": self.first_seed(self.seeds[i])}
             self.raw[i] = self.envs[i].reset(**kwargs).get("observation")
             self.started[i] = True
-        return self._td(observation=self.to_unit_box(self.raw).to(self.device))
+        return self._td(observation=self.observed())
 
     def _transition(self, action):
         S = self.num_seeds
@@ -204,7 +222,7 @@ class GymSeedEnv(SeedBatchedEnv):
             reward[i] = out.get("reward").item()
             terminated[i] = out.get("terminated").item()
             truncated[i] = out.get("truncated").item()
-        return self._td(observation=self.to_unit_box(self.raw).to(self.device)), reward, terminated, truncated
+        return self._td(observation=self.observed()), reward, terminated, truncated
 
     # ------------------------------------------------------------- state
     def state_dict(self, *args, **kwargs) -> dict:
