@@ -203,9 +203,9 @@ def test_every_settings_default_meets_its_own_constraints(config_class):
 
 
 def test_help_gives_each_configs_default_for_a_shared_flag():
-    """--gamma is DGPQ's (0.01) and DDPG's (0.99); --reward is the square's and liquidation's."""
+    """--gamma is DGPQ's (0.01) and the neural agents' (0.99); --reward is the square's and liquidation's."""
     text = " ".join(train.make_parser().format_help().split())
-    assert "[DGPQ: 0.01; DDPG: 0.99; DQN: 0.99]" in text
+    assert "[DGPQ: 0.01; DDPG: 0.99; TD3: 0.99; DQN: 0.99]" in text
     assert "Square: shaped {shaped, paper}; Liquidation: shortfall {shortfall, utility-ratio}" in text
 
 

@@ -129,6 +129,8 @@ AGENT_CASES = {
     "ac-optimal": dict(env="liquidation", agent="ac-optimal", trades=20),
     "twap": dict(env="liquidation", agent="twap", trades=20),
     "ddpg": dict(env="liquidation", agent="ddpg", trades=20, batch_size=8, buffer_size=64),
+    "td3": dict(env="liquidation", agent="td3", trades=20, batch_size=8, buffer_size=64, learning_starts=12,
+                policy_delay=3, actor_hidden=(16,), critic_hidden=(16, 16)),
     # push: pybullet worlds saved as .bullet bytes
     "dgpq-push": dict(env="push", agent="dgpq", max_steps=12),
     "oracle": dict(env="push", agent="oracle", max_steps=12),

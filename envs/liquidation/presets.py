@@ -21,6 +21,8 @@ PRESETS = {
              "course": {"env": dict(reward="utility-ratio"),
                         "agent": dict(ou_noise="uniform", ou_reset=False, ou_sigma=0.1, init="course",
                                       update="critic-then-actor", start_above_batch=True)}},
+    # TD3 (agents/td3.py): the TD3 paper's settings (TD3Config's defaults), on either reward.
+    "td3": {"shortfall": {}, "utility-ratio": UTILITY_RATIO},
     "dgpq": {
         # Tuned on the shortfall reward (README "Optimal liquidation" says why): the state is
         # (trades left, shares left) -- in a random walk past returns predict nothing, so the

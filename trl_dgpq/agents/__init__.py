@@ -12,6 +12,7 @@ AGENTS = {
     "dgpq": "trl_dgpq.dgpq:DGPQ",
     "random": "trl_dgpq.agents.random:RandomAgent",
     "ddpg": "trl_dgpq.agents.ddpg:DDPG",
+    "td3": "trl_dgpq.agents.td3:TD3",
     "dqn": "trl_dgpq.agents.dqn:DQN",
     "constant": "trl_dgpq.agents.constant:ConstantAgent",
 }

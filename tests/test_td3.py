@@ -1,0 +1,132 @@
+"""TD3: its losses equal TorchRL's TD3Loss on one seed's networks; target policy smoothing,
+the delayed actor and the exploration by hand. (Seed independence, exact resume and plain
+checkpoints: test_neural.py, test_state.py, test_plain_checkpoints.py.)"""
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torch import nn
+from torchrl.data import Bounded
+from torchrl.modules import MLP, TanhModule, ValueOperator
+from torchrl.objectives import TD3Loss
+
+from trl_dgpq.agents.neural import build_per_seed
+from trl_dgpq.agents.td3 import TD3, TD3Config, TwinCritic
+from trl_dgpq.collectors.experiment import build, resolve_config
+
+SYM = Bounded(-torch.ones(1), torch.ones(1), shape=(1,))  # [-1, 1]: TorchRL's noise units are the box's
+SMALL = dict(actor_hidden=(16,), critic_hidden=(16, 16))
+
+
+def batch_of(n, S=1, obs_dim=3, low=-1.0, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    terminated = torch.rand(S, n, 1, generator=g) < 0.3
+    return TensorDict({"observation": torch.randn(S, n, obs_dim, generator=g),
+                       "action": low + (1 - low) * torch.rand(S, n, 1, generator=g),
+                       "next": {"observation": torch.randn(S, n, obs_dim, generator=g),
+                                "reward": torch.randn(S, n, 1, generator=g),
+                                "done": terminated.clone(), "terminated": terminated}}, batch_size=[S, n])
+
+
+class Single(nn.Module):
+    """One critic of a pair as TorchRL's TD3Loss takes it: (observation, action) -> Q."""
+
+    def __init__(self, mlp):
+        super().__init__()
+        self.mlp = mlp
+
+    def forward(self, observation, action):
+        return self.mlp(torch.cat([observation, action], -1))
+
+
+def test_losses_equal_torchrls_td3_loss_on_one_seeds_networks():
+    """Seed 5's per-element losses equal TD3Loss's (squared errors, reduction "none") on seed 5's
+    own networks: twin critics against min(Q1', Q2') at the target actor's smoothed action (the
+    same Gaussian draws: TorchRL's from torch's generator, seeded alike), the actor's -Q1;
+    target networks apart from the online ones."""
+    cfg = TD3Config(gamma=0.9, policy_noise=0.4, noise_clip=0.3, **SMALL)
+    agent = TD3(cfg, [2, 5], 3, SYM)
+    with torch.no_grad():
+        for name in ("target_actor", "target_critic"):
+            for p in agent.nets[name].parameters():
+                p.mul_(0.7)
+    batch = batch_of(32, S=2)
+    mlp, twin = build_per_seed(lambda: nn.ModuleList([
+        MLP(in_features=3, out_features=1, num_cells=[16], activation_class=nn.ReLU),
+        TwinCritic(3, 1, (16, 16))]), [5])[0]
+    actor = TensorDictSequential(TensorDictModule(mlp, ["observation"], ["raw"]),
+                                 TanhModule(in_keys=["raw"], out_keys=["action"], low=SYM.space.low,
+                                            high=SYM.space.high))
+    qvalue = ValueOperator(Single(MLP(in_features=4, out_features=1, num_cells=[16, 16], activation_class=nn.ReLU)),
+                           in_keys=["observation", "action"])
+    reference = TD3Loss(actor, qvalue, action_spec=SYM, policy_noise=0.4, noise_clip=0.3, loss_function="l2",
+                        reduction="none")
+    reference.make_value_estimator(gamma=0.9)
+    with torch.no_grad():  # TD3Loss draws its twins' weights afresh: give them seed 5's Q1 and Q2
+        for params, scale in ((reference.qvalue_network_params, 1.0), (reference.target_qvalue_network_params, 0.7)):
+            leaves = list(params.flatten_keys(".").values())
+            for leaf, p1, p2 in zip(leaves, twin.q1.parameters(), twin.q2.parameters(), strict=True):
+                leaf.data[0].copy_(p1 * scale)
+                leaf.data[1].copy_(p2 * scale)
+        for key, p in reference.target_actor_network_params.flatten_keys(".").items():
+            if not key.endswith(("_low", "_high")):
+                p.mul_(0.7)
+    torch.manual_seed(11)
+    noise = torch.randn(32, 1)
+    torch.manual_seed(11)
+    ref = reference(batch[1].clone())
+    ours = agent.value_loss(batch, torch.stack([torch.zeros(32, 1), noise]))
+    torch.testing.assert_close(ours[1], ref["loss_qvalue"], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(agent.actor_loss(batch)[1], ref["loss_actor"], rtol=1e-5, atol=1e-6)
+
+
+def test_target_policy_noise_is_scaled_clipped_then_the_action_boxed():
+    """Box [0, 1] (half-width 0.5): noise 0.2 x 0.5 per unit draw, clipped at 0.5 x 0.5; the sum
+    clipped to the box."""
+    box = Bounded(torch.zeros(1), torch.ones(1), shape=(1,))
+    agent = TD3(TD3Config(**SMALL), [0], 3, box)
+    obs = torch.randn(1, 4, 3)
+    with torch.no_grad():
+        base = agent.nets["target_actor"](obs)
+        got = agent.target_action(obs, torch.tensor([[[0.0], [1.0], [10.0], [-10.0]]]))
+    expect = (base + torch.tensor([[[0.0], [0.1], [0.25], [-0.25]]])).clamp(0, 1)
+    torch.testing.assert_close(got, expect)
+    with torch.no_grad():
+        far = agent.target_action(obs, torch.full((1, 4, 1), 1e6))
+    assert (far <= 1).all() and (far >= 0).all()
+
+
+def test_actor_and_targets_move_every_policy_delay_critic_steps():
+    """policy_delay 3: the critic moves at every update, the actor and both targets only at the
+    3rd and 6th."""
+    agent = TD3(TD3Config(policy_delay=3, batch_size=8, buffer_size=64, learning_starts=0, **SMALL), [0, 1], 3, SYM)
+    batch = batch_of(8, S=2)
+    moved = []
+    for _ in range(6):
+        before = {k: v.clone() for k, v in agent.nets.state_dict().items()}
+        agent.update(batch)
+        after = agent.nets.state_dict()
+        moved.append({name for name in ("actor", "critic", "target_actor", "target_critic")
+                      if any(not torch.equal(before[k], after[k]) for k in before if k.startswith(name + "."))})
+    assert moved == [{"critic"}, {"critic"}, {"critic", "actor", "target_actor", "target_critic"}] * 2
+
+
+def test_warm_up_is_uniform_in_the_box_then_noise_around_the_actor():
+    """learning_starts 50 on [0, 1]: the first 50 actions spread over the box (mean about 0.5,
+    none near the actor's); later ones lie within a few noise s.d. (0.1 x 0.5) of the actor's."""
+    box = Bounded(torch.zeros(1), torch.ones(1), shape=(1,))
+    agent = TD3(TD3Config(learning_starts=50, **SMALL), list(range(64)), 3, box)
+    td = TensorDict({"observation": torch.randn(64, 3)}, batch_size=[64])
+    greedy = agent.exploit(td)
+    warm = torch.stack([agent.act(td) for _ in range(50) if not agent.__setattr__("steps", agent.steps + 1)])
+    assert abs(float(warm.mean()) - 0.5) < 0.02 and float((warm - greedy).abs().mean()) > 0.2
+    later = torch.stack([agent.act(td) for _ in range(20)]) - greedy
+    inside = greedy.gt(0.2) & greedy.lt(0.8)  # away from the box's faces, where clipping bites
+    assert float(later[:, inside].std()) == pytest.approx(0.05, rel=0.1)
+
+
+def test_td3_runs_on_liquidation_and_refuses_discrete_actions():
+    env, agent = build(resolve_config(env="liquidation", agent="td3", seeds=[0, 1]))
+    assert agent.act(env.reset()).shape == (2, 1)
+    with pytest.raises(ValueError, match="td3"):
+        resolve_config(env="square", agent="td3")
