@@ -6,6 +6,7 @@
     python scripts/bench.py kernel  # manifold vs RBF GP regression on discontinuous functions
     python scripts/bench.py push    # block pushing: agent steps per second, share of physics
     python scripts/bench.py qhat    # one evaluation of Q̂ (Eq. 7) against the pairs it holds
+    python scripts/bench.py parity  # DQN vs Stable-Baselines3's DQN, the zoo's settings and budgets, 10 seeds
     python scripts/bench.py neural  # DQN and DDPG seed-batched vs the per-seed code, and SB3's DQN
     python scripts/bench.py threads # ms per seed-step at 1 and 2 torch threads, quiet and loaded
     python scripts/bench.py step-parts  # a learning step: the update and the work around it
@@ -463,6 +464,9 @@ def main(argv=None):
     sp.add_argument("--warmup", type=int, default=1_100)
     sp.add_argument("--out", default=None)
     sp.set_defaults(fn=lambda a: _neural().bench_step_parts(a))
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import bench_parity
+    bench_parity.add_parser(sub)
     args = p.parse_args(argv)
     if args.what == "threads" and args.seed_counts is None:
         args.seed_counts = dict(dgpq=[1, 64], dqn=[1, 10], ddpg=[1, 4])

@@ -83,6 +83,12 @@ def old_tree(rev: str) -> Path:
     if not path.exists():
         subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", str(path), rev], check=True,
                        capture_output=True)
+    # envs/ and collectors/ install as trl_dgpq.envs and trl_dgpq.collectors: without these links the
+    # editable install's finder would serve this checkout's folders to the old tree's package
+    for folder in ("envs", "collectors"):
+        link = path / "trl_dgpq" / folder
+        if (path / folder).is_dir() and not link.exists():
+            link.symlink_to(Path("..") / folder)
     return path
 
 
