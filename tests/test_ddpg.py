@@ -79,11 +79,13 @@ def ou_trace(cfg, seeds, new_episode_at=(), steps=6):
     return out
 
 
-@pytest.mark.parametrize("kind, reset", [("normal", True), ("uniform", False), ("uniform", True)])
-def test_ou_noise_by_hand(kind, reset):
-    """x_t = x_{t-1} + theta (0 - x_{t-1}) + sigma d_t with d_t the seed's own N(0, 1) or U[0, 1)
-    draws, x restarting from 0 at a new episode only if ou_reset."""
-    cfg = DDPGConfig(ou_theta=0.3, ou_sigma=0.5, ou_noise=kind, ou_reset=reset)
+@pytest.mark.parametrize("kind, reset, dt", [("normal", True, 1.0), ("uniform", False, 1.0), ("uniform", True, 1.0),
+                                             ("normal", True, 0.25)])
+def test_ou_noise_by_hand(kind, reset, dt):
+    """x_t = x_{t-1} + theta (0 - x_{t-1}) dt + sigma sqrt(dt) d_t with d_t the seed's own N(0, 1) or
+    U[0, 1) draws, x restarting from 0 at a new episode only if ou_reset (dt 0.25: the drift a
+    quarter, the diffusion a half)."""
+    cfg = DDPGConfig(ou_theta=0.3, ou_sigma=0.5, ou_noise=kind, ou_reset=reset, ou_dt=dt)
     got = ou_trace(cfg, [2, 5], new_episode_at=(3,))
     rng = SeedStreams([2, 5], stream_id("ddpg.ou"))
     x = torch.zeros(2, 1, dtype=torch.float64)
@@ -91,7 +93,7 @@ def test_ou_noise_by_hand(kind, reset):
         if t == 3 and reset:
             x = torch.zeros_like(x)
         d = rng.uniform(1) if kind == "uniform" else rng.normal(1)
-        x = x - 0.3 * x + 0.5 * d
+        x = x - 0.3 * x * dt + 0.5 * dt ** 0.5 * d
         torch.testing.assert_close(g.double(), x, rtol=1e-5, atol=1e-6)
 
 

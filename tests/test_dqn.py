@@ -177,6 +177,14 @@ def test_exploration_takes_random_actions_at_the_rate_epsilon():
     assert abs(float(differ) - 0.15) < 0.01
 
 
+def test_exploration_draws_every_action_the_last_included():
+    """epsilon 1 with 5 actions: every action, 4 included, is drawn, each about a fifth of the time."""
+    agent = DQN(DQNConfig(hidden=(8,), eps_init=1.0, eps_end=1.0), list(range(50)), 3, 5)
+    td = TensorDict({"observation": torch.rand(50, 3)}, batch_size=[50])
+    counts = torch.bincount(torch.cat([agent.act(td) for _ in range(40)]), minlength=5)
+    assert counts.numel() == 5 and (counts - 400).abs().max() < 80
+
+
 def test_target_copy_goes_from_online_to_target():
     """After a copy the target holds what the online network held, and the online network is
     unchanged (a copy the wrong way round also leaves the two equal)."""
