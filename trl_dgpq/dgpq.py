@@ -32,6 +32,7 @@ from .config import check_config, nested, setting
 from .gp import GPConfig, fit, make_gp, make_kernel
 from .qhat import METRICS, LipschitzQ
 from .rng import TIE_STREAM, SeedStreams
+from .tuning import LogUniform
 
 COVERINGS = ("env", "unit-square")
 
@@ -115,6 +116,17 @@ class DGPQConfig:
             self.sigma_tol2 = sigma_tol2 if self.sigma_tol2 is None else self.sigma_tol2
             check_config(self)
         return self
+
+
+# What `trl-dgpq tune` searches (trl_dgpq/tuning.py): the GP's lengthscale and noise omega_n^2, Q̂'s L_Q,
+# and Algorithm 1's sigma_tol^2 and eps1 (given, so Section 5 derives nothing).
+SEARCH_SPACE = {
+    "lengthscale": LogUniform(0.01, 1.0),
+    "lipschitz": LogUniform(0.1, 100.0),
+    "sigma_tol2": LogUniform(1e-4, 0.5),
+    "eps1": LogUniform(1e-4, 0.1),
+    "noise_var": LogUniform(1e-3, 1.0),
+}
 
 
 def argmax_random_ties(q: torch.Tensor, u: torch.Tensor) -> torch.Tensor:

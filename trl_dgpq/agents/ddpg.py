@@ -37,6 +37,7 @@ from torchrl.modules import MLP
 
 from ..config import setting
 from ..rng import SeedStreams, stream_id
+from ..tuning import LogUniform, Uniform
 from .neural import SeedBatchedLearner, SeedStack, Target, build_per_seed, seed_mean
 
 
@@ -69,6 +70,15 @@ class DDPGConfig:
     def cross_check(self) -> None:
         if self.buffer_size < self.batch_size:
             raise ValueError(f"need 1 <= batch_size <= buffer_size, got {self.batch_size} and {self.buffer_size}")
+
+
+# What `trl-dgpq tune` searches (trl_dgpq/tuning.py).
+SEARCH_SPACE = {
+    "actor_lr": LogUniform(1e-5, 1e-3),
+    "critic_lr": LogUniform(1e-4, 1e-2),
+    "target_update": LogUniform(1e-3, 0.1),
+    "ou_sigma": Uniform(0.02, 0.5),
+}
 
 
 class Critic(nn.Module):

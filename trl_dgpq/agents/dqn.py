@@ -35,6 +35,7 @@ from torchrl.modules import MLP
 
 from ..config import setting
 from ..rng import SeedStreams, stream_id
+from ..tuning import Choice, IntRange, LogUniform, OfBudget, Uniform
 from .neural import SeedBatchedLearner, SeedStack, Target, build_per_seed, clip_grad_norm_per_seed, seed_mean
 
 
@@ -64,6 +65,20 @@ class DQNConfig:
             raise ValueError(f"need 1 <= batch_size <= buffer_size, got {self.batch_size} and {self.buffer_size}")
         if self.eps_end > self.eps_init:
             raise ValueError(f"need 0 <= eps_end <= eps_init <= 1, got {self.eps_end} and {self.eps_init}")
+
+
+# What `trl-dgpq tune` searches (trl_dgpq/tuning.py); epsilon's decay as a fraction of a budget of env steps.
+SEARCH_SPACE = {
+    "lr": LogUniform(1e-4, 1e-2),
+    "hidden": Choice(((64, 64), (128, 128), (256, 256))),
+    "target_update_interval": IntRange(10, 1_000, log=True),
+    "eps_end": Uniform(0.01, 0.2),
+    "exploration_steps": OfBudget(0.05, 0.5, otherwise=IntRange(500, 20_000, log=True)),
+    "batch_size": Choice((32, 64, 128, 256)),
+    "buffer_size": Choice((10_000, 50_000, 100_000)),
+    "train_freq": Choice((1, 4, 8, 16)),
+    "gradient_steps": Choice((1, 2, 4, 8)),
+}
 
 
 class DQN(SeedBatchedLearner):

@@ -1,0 +1,126 @@
+"""What a study may search (``trl-dgpq tune``), declared beside each agent's config.
+
+An agent's module holds one ``SEARCH_SPACE``: {setting name: range}, ranges on settings
+its config already has, made of the classes below:
+
+    SEARCH_SPACE = {"lr": LogUniform(1e-4, 1e-2), "hidden": Choice(((64, 64), (256, 256))),
+                    "exploration_steps": OfBudget(0.05, 0.5, otherwise=IntRange(1_000, 20_000))}
+
+Each range turns into one Optuna suggestion and back into the setting's value; nothing
+here imports Optuna (agent modules import this one). Which seeds a study may tune on is
+here too: never those reports are drawn from.
+"""
+from __future__ import annotations
+
+import importlib
+import math
+from dataclasses import dataclass
+from typing import Any, Tuple
+
+# Seeds reports are drawn from: configs/compare.toml (0-9, make compare), reproduce's scales
+# (0..N-1, N <= 10), RunConfig's default (0-7). Tuning on them would report the seeds the settings
+# were chosen on, so a study refuses them (tests/test_tune.py checks these files stay inside).
+REPORTING_SEEDS = range(0, 100)
+TUNING_SEEDS = range(1000, 1005)  # tune's default seeds
+
+
+def check_tuning_seeds(seeds) -> None:
+    """ValueError (one line) if any of ``seeds`` is a reporting seed."""
+    shared = sorted(set(seeds) & set(REPORTING_SEEDS))
+    if shared:
+        r = REPORTING_SEEDS
+        first = ", ".join(map(str, shared[:3]))
+        listed = shared if len(shared) <= 6 else f"[{first}, ..., {shared[-1]}] ({len(shared)})"
+        raise ValueError(f"tuning seeds {listed} are reporting seeds ({r.start}-{r.stop - 1}: reports and make "
+                         f"compare use them): tune on seeds from {r.stop} up, e.g. the default --seeds "
+                         f"{TUNING_SEEDS.start}-{TUNING_SEEDS.stop - 1}")
+
+
+@dataclass(frozen=True)
+class Uniform:
+    low: float
+    high: float
+    log = False
+
+    def suggest(self, trial, name: str, budget: int):
+        return trial.suggest_float(name, self.low, self.high, log=self.log)
+
+    def contains(self, value, budget: int) -> bool:
+        return self.low <= value <= self.high
+
+
+@dataclass(frozen=True)
+class LogUniform(Uniform):
+    log = True
+
+
+@dataclass(frozen=True)
+class IntRange:
+    low: int
+    high: int
+    log: bool = False
+
+    def suggest(self, trial, name: str, budget: int):
+        return trial.suggest_int(name, self.low, self.high, log=self.log)
+
+    def contains(self, value, budget: int) -> bool:
+        return isinstance(value, int) and self.low <= value <= self.high
+
+
+@dataclass(frozen=True)
+class Choice:
+    """One of ``options``; tuples (network widths) go to Optuna as text ("64,64") and come back."""
+    options: Tuple[Any, ...]
+
+    @staticmethod
+    def label(option) -> Any:
+        return ",".join(map(str, option)) if isinstance(option, tuple) else option
+
+    def suggest(self, trial, name: str, budget: int):
+        picked = trial.suggest_categorical(name, [self.label(o) for o in self.options])
+        return next(o for o in self.options if self.label(o) == picked)
+
+    def contains(self, value, budget: int) -> bool:
+        return value in self.options
+
+
+@dataclass(frozen=True)
+class OfBudget:
+    """A count of env steps as a fraction in [low, high] of a budget of env steps (the
+    optuna parameter ``<name>_fraction``); a run budgeted in episodes has no such count, so
+    there ``otherwise`` applies."""
+    low: float
+    high: float
+    otherwise: Any
+
+    def suggest(self, trial, name: str, budget: int):
+        if not budget:
+            return self.otherwise.suggest(trial, name, budget)
+        return max(1, round(trial.suggest_float(f"{name}_fraction", self.low, self.high) * budget))
+
+    def contains(self, value, budget: int) -> bool:
+        if not budget:
+            return self.otherwise.contains(value, budget)
+        return max(1, math.floor(self.low * budget)) <= value <= math.ceil(self.high * budget)
+
+
+def search_space(agent_cls) -> dict:
+    """The ``SEARCH_SPACE`` beside ``agent_cls``'s config (ValueError if none, or if it names a
+    setting the config does not have)."""
+    from .config import find_leaf
+    module = importlib.import_module(agent_cls.Config.__module__)
+    space = getattr(module, "SEARCH_SPACE", None)
+    if not space:
+        raise ValueError(f"{agent_cls.__name__} has nothing to tune: declare SEARCH_SPACE beside its config in "
+                         f"{module.__name__}")
+    unknown = [k for k in space if find_leaf(agent_cls.Config, k) is None]
+    if unknown:
+        raise ValueError(f"SEARCH_SPACE of {module.__name__} names {unknown}, not settings of "
+                         f"{agent_cls.Config.__name__}")
+    return space
+
+
+def suggest(trial, space: dict, budget: int) -> dict:
+    """{setting: value} drawn by ``trial`` from ``space``; ``budget``: env steps per seed (0 if
+    the run is budgeted in episodes)."""
+    return {name: r.suggest(trial, name, budget) for name, r in space.items()}
