@@ -35,6 +35,8 @@ from .runs import load_run
 from .stats import iqm, normalised, oriented, probability_of_improvement, profiles
 from .summary import at_budget, curve, kernel_fits_per_seed, ms_per_seed_step, steps_to_threshold
 
+WINDOW = 10  # episodes in each seed's running mean: the curves and the at-budget column (and tune's objective)
+
 
 def default_budget(entries) -> int:
     """The runs' common ``env_steps`` budget, else the fewest steps any of their seeds ran."""
@@ -128,7 +130,7 @@ def default_labels(runs) -> list:
             for k, run in zip(keys, runs)]
 
 
-def report(runs, labels, out: Path, budget=None, window: int = 10) -> tuple:
+def report(runs, labels, out: Path, budget=None, window: int = WINDOW) -> tuple:
     """Figures and the markdown table; returns (written paths, markdown text). ``labels``:
     one per run, or None for each run's agent and preset."""
     import matplotlib.pyplot as plt

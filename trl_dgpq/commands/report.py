@@ -14,7 +14,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from trl_dgpq.analysis.report import report
+from trl_dgpq.analysis.report import WINDOW, report
 from trl_dgpq.commands import guarded, prog
 
 
@@ -24,7 +24,7 @@ def main(argv=None) -> int:
     p.add_argument("runs", nargs="+", help="run folders or sweep experiment folders")
     p.add_argument("--labels", nargs="+", default=None, help="one per run (default: agent and preset)")
     p.add_argument("--budget", type=int, default=None, help="environment steps per seed for the 'at budget' column")
-    p.add_argument("--window", type=int, default=10, help="episodes in the running mean of the curves and table")
+    p.add_argument("--window", type=int, default=WINDOW, help="episodes in the running mean of the curves and table")
     p.add_argument("--out", default=None, help="folder for the figures and compare.md (default: the first run's)")
     args = p.parse_args(argv)
     return guarded("report", lambda: run(args))
