@@ -4,8 +4,17 @@ by agent, and ``DEFAULT``, the default preset's name); this module holds the
 building blocks several domains share and the lookup.
 
 Keys are setting names as on the command line (``noise_var``, or dotted paths).
+
+A study's best trial (``trl-dgpq tune --write-preset``) is a preset too, named ``tuned``: it
+lives in ``envs/<domain>/tuned.json`` beside the domain's presets, keyed by env name and
+agent, with its provenance, and the lookup below adds it to every domain's table.
 """
 from __future__ import annotations
+
+import importlib
+import json
+import os
+from pathlib import Path
 
 # DQN on the suite's own envs (not tuned; README "DGPQ against DQN"): rl-baselines3-zoo's
 # CartPole-scale settings shrunk to these small tasks -- a (64, 64) network, one update per
@@ -21,10 +30,46 @@ def rbf_and_manifold(name: str, **agent) -> dict:
     return {name: {"agent": agent}, "manifold": {"agent": dict(agent, kernel="manifold")}}
 
 
+TUNED = "tuned"
+
+
+def tuned_file(env: str) -> Path:
+    """The tuned presets of ``env``'s domain: ``envs/<domain>/tuned.json``, {env: {agent:
+    {"preset": {"env": ..., "agent": ...}, "provenance": {...}}}}."""
+    from trl_dgpq.envs import domain
+    return Path(importlib.import_module(domain(env).package).__file__).parent / "tuned.json"
+
+
+def tuned_entries(env: str) -> dict:
+    """{agent: {"preset": ..., "provenance": ...}} of ``env`` in its domain's tuned.json."""
+    path = tuned_file(env)
+    try:
+        return json.loads(path.read_text()).get(env, {})
+    except FileNotFoundError:
+        return {}
+    except (OSError, ValueError, AttributeError) as err:
+        raise ValueError(f"cannot read the tuned presets in {path}: {err}") from None
+
+
+def write_tuned(env: str, agent: str, preset: dict, provenance: dict) -> Path:
+    """Record ``preset`` as ``env``'s ``tuned`` preset of ``agent`` (the file's other entries kept);
+    the file is replaced whole (a temporary file, then a rename)."""
+    path = tuned_file(env)
+    data = json.loads(path.read_text()) if path.exists() else {}
+    data.setdefault(env, {})[agent] = {"preset": preset, "provenance": provenance}
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
 def preset_table(env: str, agent: str):
-    """{preset name: entry} of ``agent`` on ``env`` (None: no presets)."""
+    """{preset name: entry} of ``agent`` on ``env``, with its ``tuned`` preset if a study wrote
+    one (None: no presets)."""
     from trl_dgpq.envs import domain, split_name
-    return domain(env).presets(agent, split_name(env)[1])
+    table = domain(env).presets(agent, split_name(env)[1])
+    tuned = tuned_entries(env).get(agent)
+    return table if tuned is None else {**(table or {}), TUNED: tuned["preset"]}
 
 
 def default_preset(env: str) -> str:
