@@ -13,6 +13,7 @@ COMMANDS = {
     "plot": "figures of one or more run folders",
     "report": "learners compared by environment steps, from run folders",
     "reproduce": "every experiment of the reproduction, then REPORT.md",
+    "tune": "an agent's settings tuned by Optuna on one env, every trial the same budget",
 }
 
 

@@ -32,6 +32,7 @@ from trl_dgpq.collectors.experiment import cli_owners, describe, quiet_torchrl, 
 from trl_dgpq.commands import command, prog
 from trl_dgpq.config import describe_default
 from trl_dgpq.envs import domain, split_name
+from trl_dgpq.presets import preset_table
 
 PROCESS_FLAGS = ("out", "resume", "overwrite", "config", "set", "no_progress", "print_config", "yes", "list_presets")
 
@@ -65,7 +66,8 @@ def list_presets() -> str:
     from trl_dgpq.envs import domains
     lines = []
     for d in domains():
-        for env, agent, table in d.preset_tables():
+        for env, agent, _ in d.preset_tables():
+            table = preset_table(env, agent)  # with a study's "tuned", if one was written
             default = d.default_preset(split_name(env)[1])
             names = sorted(table, key=lambda n: (n != default, n))
             lines.append(f"{env:<22} {agent:<12} " + ", ".join(f"{n} (default)" if n == default else n
@@ -90,8 +92,15 @@ def make_parser() -> argparse.ArgumentParser:
                    help="print the resolved config (presets and flags applied) as JSON and exit; runs nothing")
     p.add_argument("--yes", action="store_true", help=f"run more than {MANY_SEEDS} seeds without asking")
     p.add_argument("--list-presets", action="store_true", help="list every env's presets for each agent and exit")
+    add_setting_flags(p, cli_owners())
+    return p
+
+
+def add_setting_flags(p: argparse.ArgumentParser, settings: dict) -> None:
+    """A flag per setting, in a group per config, from {key: [(config class name, leaf), ...]}
+    (``cli_owners()``); each defaults to None, "not given"."""
     groups = {}
-    for key, owners in cli_owners().items():
+    for key, owners in settings.items():
         title = (f"{section_name(owners[0][0])} settings" if len(owners) == 1
                  else "settings of several envs or agents (each one's default)")
         if title not in groups:
@@ -113,7 +122,6 @@ def make_parser() -> argparse.ArgumentParser:
             g.add_argument(flag, dest=key, action=argparse.BooleanOptionalAction, default=None, help=text)
         else:
             g.add_argument(flag, dest=key, default=None, metavar=key.upper(), help=text)
-    return p
 
 
 def length(run: dict) -> str:
@@ -124,9 +132,9 @@ def length(run: dict) -> str:
     return f"{run['env_steps']:,} env steps{cap}"
 
 
-def given_settings(args, parser) -> dict:
-    """The settings named on the command line: flags, then --set."""
-    settings = {k: v for k, v in vars(args).items() if k not in PROCESS_FLAGS and v is not None}
+def given_settings(args, parser, process=PROCESS_FLAGS) -> dict:
+    """The settings named on the command line (flags other than the ``process`` flags, then --set)."""
+    settings = {k: v for k, v in vars(args).items() if k not in process and v is not None}
     for item in args.set:
         key, eq, value = item.partition("=")
         if not eq or not key.strip():

@@ -1,0 +1,8 @@
+#!/usr/bin/env python
+"""``python scripts/tune.py --help``: see ``trl_dgpq/commands/tune.py``."""
+import sys
+
+from trl_dgpq.commands.tune import main
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,252 @@
+"""scripts/tune.py (trl_dgpq/study.py): Optuna studies of an agent's settings, every trial a run
+with the same budget; its objective, search spaces, seeds, pruning, resume and tuned presets."""
+import json
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import optuna
+import pandas as pd
+import pytest
+
+from trl_dgpq import presets
+from trl_dgpq.agents import agent_class
+from trl_dgpq.analysis.objective import Objective, objective, stage
+from trl_dgpq.analysis.runs import Run, load_run
+from trl_dgpq.analysis.runs import read_csv_exact
+from trl_dgpq.collectors.experiment import TIMING_COLUMNS, RunConfig, parse_seeds, resolve_config, run_experiment
+from trl_dgpq.commands import tune
+from trl_dgpq.envs import domains
+from trl_dgpq.study import KEEP, Study
+from trl_dgpq.tuning import REPORTING_SEEDS, TUNING_SEEDS, IntRange, LogUniform, OfBudget, search_space, suggest
+
+ROOT = Path(__file__).resolve().parent.parent
+# one seed, 2 stages of 2 episodes (a second or two a trial), a checkpoint after every episode
+TINY = ["--env", "square", "--agent", "dgpq", "--seeds", "1000-1000", "--episodes", "4", "--stages", "0.5,1",
+        "--checkpoint-every", "1"]
+
+
+def trials_of(out):
+    return optuna.load_study(study_name=Path(out).name, storage=f"sqlite:///{Path(out) / 'study.db'}").trials
+
+
+def frame(rows):
+    """A hand-made episodes frame as ``load_run`` gives it (each seed's cumulative env_steps)."""
+    df = pd.DataFrame(rows, columns=["seed", "episode", "steps", "implementation_shortfall"])
+    df["env_steps"] = df.groupby("seed")["steps"].cumsum()
+    return df
+
+
+# ---------------------------------------------------------------- the objective
+
+
+def test_objective_steps_to_threshold_by_hand():
+    """Square: steps to "mean steps <= 25 over 10 episodes", a seed that never meets it counting
+    as the budget (1,000 env steps), IQM over 5 seeds = the mean of the middle three."""
+    per_seed_steps = {0: [20] * 12,                 # met at episode 10: 200 steps
+                      1: [30] * 12,                 # never: 1,000
+                      2: [40] * 10 + [10] * 6,      # 40 - 3k <= 25 after k = 5 more: 400 + 50 = 450 steps
+                      3: [25] * 12,                 # met at episode 10: 250
+                      4: [100] * 10}                # never: 1,000
+    df = frame([(s, e + 1, n, 0.0) for s, steps in per_seed_steps.items() for e, n in enumerate(steps)])
+    run = Run(Path("."), df, {"run": {"env": "square", "env_steps": 1000, "episodes": 1000}})
+    obj = objective("square")
+    assert obj.direction == "minimize"
+    assert obj.per_seed(run).tolist() == [200, 1000, 450, 250, 1000]
+    assert obj.value(run) == pytest.approx((250 + 450 + 1000) / 3)
+
+
+def test_objective_measure_at_budget_by_hand():
+    """Liquidation (no threshold; less shortfall is better): each seed's mean over its last 10
+    episodes ended within the budget (50 steps: episodes 1-10 of 5 steps), IQM over 4 seeds."""
+    df = frame([(s, e, 5, 10 * s + e) for s in range(4) for e in range(1, 13)])
+    run = Run(Path("."), df, {"run": {"env": "liquidation", "env_steps": 50, "episodes": 50}})
+    obj = objective("liquidation")
+    assert obj.direction == "minimize" and obj.threshold is None
+    assert obj.per_seed(run).tolist() == [5.5, 15.5, 25.5, 35.5]
+    assert obj.value(run) == pytest.approx((15.5 + 25.5) / 2)
+
+
+def test_a_stage_of_a_run_is_the_shorter_run():
+    """What a trial reports after a stage: its rows cut to the stage's budget are those of a run
+    asked for that budget (a seed's last episode is the one that crossed it)."""
+    config = resolve_config(env="square", agent="dgpq", seeds=[1000, 1001], env_steps=300)
+    short = resolve_config(env="square", agent="dgpq", seeds=[1000, 1001], env_steps=120)
+    long = Run(Path("."), with_env_steps(run_experiment(config, progress=False)), config)
+    cut = stage(long, {"episodes": 120, "env_steps": 120})
+    assert len(cut.df) < len(long.df) and cut.config["run"]["env_steps"] == 120
+    pd.testing.assert_frame_equal(rows(cut.df), rows(with_env_steps(run_experiment(short, progress=False))))
+
+
+def rows(df):
+    """Episode rows in (seed, episode) order, without the timing columns."""
+    df = df.sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
+    return df.drop(columns=list(TIMING_COLUMNS))
+
+
+def with_env_steps(df):
+    df = df.sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
+    df["env_steps"] = df.groupby("seed")["steps"].cumsum()
+    return df
+
+
+# ---------------------------------------------------------------- search spaces and seeds
+
+
+@pytest.mark.parametrize("env, agent, budget", [("square", "dgpq", {"episodes": 4}),
+                                                ("square", "dqn", {"env_steps": 10_000}),
+                                                ("square", "dqn", {"episodes": 4}),
+                                                ("liquidation", "ddpg", {"episodes": 4})])
+def test_suggestions_stay_in_their_ranges_and_make_valid_configs(env, agent, budget):
+    space = search_space(agent_class(agent, env))
+    steps = budget.get("env_steps", 0)
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=3))
+    for _ in range(25):
+        trial = study.ask()
+        settings = suggest(trial, space, steps)
+        for name, r in space.items():
+            v = settings[name]
+            if hasattr(r, "options"):
+                assert v in r.options, (name, v)
+            elif isinstance(r, OfBudget) and steps:
+                assert r.low * steps - 1 <= v <= r.high * steps + 1 and isinstance(v, int), (name, v)
+                assert trial.distributions[f"{name}_fraction"].low == r.low
+            else:
+                inner = r.otherwise if isinstance(r, OfBudget) else r
+                assert inner.low <= v <= inner.high, (name, v)
+                log = isinstance(inner, LogUniform) or (isinstance(inner, IntRange) and inner.log)
+                assert trial.distributions[name].log == log, name
+        config = resolve_config({"env": env, "agent": agent, **budget,
+                                 **{f"agent.{k}": v for k, v in settings.items()}})
+        flat = {**config["agent"], **config["agent"].get("gp", {})}
+        assert {k: flat[k] for k in settings} == {k: list(v) if isinstance(v, tuple) else v
+                                                  for k, v in settings.items()}
+        study.tell(trial, 0.0)
+
+
+def test_reporting_seeds_cover_every_report_and_tuning_seeds_avoid_them():
+    """REPORTING_SEEDS holds the seeds of make compare, of every reproduction scale and train's
+    default; the tuning default is outside them."""
+    compare = tomllib.loads((ROOT / "configs" / "compare.toml").read_text())
+    given = [compare["defaults"]["seeds"]] + [e["seeds"] for e in compare["experiment"] if "seeds" in e]
+    for d in domains():  # reproduce: counts per scale, the domain's and an experiment's own
+        analysis = d.analysis()
+        own = [e[2] for e in getattr(analysis, "REPRODUCE", []) if len(e) > 2]
+        for scales in [getattr(analysis, "SCALES", {}), *own]:
+            given += [seeds for seeds, _ in scales.values()]
+    used = {s for g in given for s in parse_seeds(g)} | set(RunConfig().seeds)
+    assert used <= set(REPORTING_SEEDS)
+    assert not set(TUNING_SEEDS) & set(REPORTING_SEEDS)
+
+
+def test_tuning_on_reporting_seeds_is_refused_in_one_line(tmp_path, capsys):
+    out = tmp_path / "study"
+    with pytest.raises(SystemExit) as exc:
+        tune.main(["--env", "square", "--agent", "dgpq", "--seeds", "95-104", "--trials", "1", "--out", str(out)])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "[95, 96, 97, 98, 99] are reporting seeds" in err
+    assert not out.exists()
+
+
+# ---------------------------------------------------------------- studies
+
+
+def test_a_larger_trials_adds_trials_and_a_full_study_only_reports(tmp_path, capsys):
+    out = str(tmp_path / "study")
+    args = [*TINY, "--episodes", "2", "--out", out]
+    assert tune.main([*args, "--trials", "2"]) == 0
+    first = [(t.params, t.value) for t in trials_of(out)]
+    assert tune.main([*args, "--trials", "3"]) == 0
+    trials = trials_of(out)
+    assert len(trials) == 3 and all(t.state == optuna.trial.TrialState.COMPLETE for t in trials)
+    assert [(t.params, t.value) for t in trials[:2]] == first
+    for t in trials:  # an ended trial keeps its rows and config, no checkpoint
+        assert sorted(p.name for p in (tmp_path / "study" / "trials" / f"{t.number:04d}").iterdir()) == sorted(KEEP)
+    capsys.readouterr()
+    assert tune.main(["--out", out, "--trials", "3"]) == 0  # full: the summary, no trial
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(trials_of(out)) == 3
+    best = min(trials, key=lambda t: t.value)
+    assert lines[-1].startswith(f"best: trial {best.number}, steps to threshold {best.value:.6g} ")
+    assert lines[-1].endswith("3/3 trials done (3 complete, 0 pruned, 0 failed)")
+
+
+def test_a_study_continues_after_its_process_is_killed(tmp_path):
+    """kill -9 in the middle of trial 0 (once its run folder has a checkpoint): the next run fails
+    it, runs its parameters again from that checkpoint, and ends with the rows of a run that was
+    never stopped."""
+    out = tmp_path / "study"
+    args = [*TINY, "--trials", "2", "--out", str(out)]
+    proc = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "tune.py"), *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    checkpoint = out / "trials" / "0000" / "checkpoint.pt"
+    deadline = time.time() + 120
+    while not checkpoint.exists() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.02)
+    proc.kill()
+    proc.wait()
+    assert checkpoint.exists()
+    assert tune.main(args) == 0
+    killed, *rest = trials_of(out)
+    assert killed.state == optuna.trial.TrialState.FAIL and "is gone" in killed.user_attrs["retried"]
+    retry = next(t for t in rest if t.user_attrs.get("retry_of") == 0)
+    assert retry.state == optuna.trial.TrialState.COMPLETE and retry.params == killed.params
+    assert retry.user_attrs["resumed"]["episodes_done"] >= 1  # from the checkpoint, not from scratch
+    assert sum(t.state == optuna.trial.TrialState.COMPLETE for t in rest) == 2
+    folder = out / "trials" / f"{retry.number:04d}"
+    assert not (out / "trials" / "0000").exists() and sorted(p.name for p in folder.iterdir()) == sorted(KEEP)
+    config = {k: v for k, v in json.loads((folder / "config.json").read_text()).items() if k in ("run", "env", "agent")}
+    pd.testing.assert_frame_equal(rows(read_csv_exact(folder / "episodes.csv")),
+                                  rows(run_experiment(config, progress=False)))
+
+
+def test_ctrl_c_hands_the_trial_on_and_says_how_to_continue(tmp_path, capsys, stop_run_after):
+    out = str(tmp_path / "study")
+    args = [*TINY, "--trials", "1", "--out", out]
+    stop_run_after(1, "signal")  # SIGINT once the first episode's row is on disk
+    assert tune.main(args) == 130
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.endswith(f"continue with: python scripts/tune.py --out {out} --trials 1")
+    assert tune.main(["--out", out, "--trials", "1"]) == 0
+    stopped, retry = trials_of(out)
+    assert stopped.user_attrs["retried"] == "interrupted by SIGINT"
+    assert retry.state == optuna.trial.TrialState.COMPLETE and retry.user_attrs["resumed"]["episodes_done"] >= 1
+
+
+def test_median_pruner_stops_a_trial_below_the_median(tmp_path, monkeypatch):
+    """Values crafted per trial (trial 2 far worse at every stage): after two trials have ended,
+    the pruner stops trial 2 after its first stage, whose rows are all it ran."""
+    crafted = {0: 10.0, 1: 12.0, 2: 1000.0}
+    monkeypatch.setattr(Objective, "value", lambda self, run: crafted[int(run.path.name)])
+    out = tmp_path / "study"
+    assert tune.main([*TINY, "--episodes", "2", "--prune-after", "2", "--trials", "3", "--out", str(out)]) == 0
+    states = [t.state.name for t in trials_of(out)]
+    assert states == ["COMPLETE", "COMPLETE", "PRUNED"]
+    pruned = trials_of(out)[2]
+    assert pruned.intermediate_values == {1: 1000.0}
+    folder = out / "trials" / "0002"
+    assert load_run(folder).df.episode.max() == 1 and sorted(p.name for p in folder.iterdir()) == sorted(KEEP)
+
+
+def test_the_best_trial_round_trips_as_the_tuned_preset(tmp_path, monkeypatch):
+    """--write-preset: the base preset the study ran on (its env section too), the settings given
+    to it, the best trial's over them; resolve_config(preset="tuned") gives them back."""
+    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+    out = tmp_path / "study"
+    study = Study.open(out, None, {"env": "square", "agent": "dqn", "preset": "noisy", "episodes": "4",
+                                   "gamma": "0.8"}, {})
+    best = {"lr": 0.003, "hidden": [128, 128], "eps_end": 0.07, "exploration_steps": 900}
+    for value, settings in [(50.0, {"lr": 0.0002}), (20.0, best)]:
+        study.load().add_trial(optuna.trial.create_trial(value=value, user_attrs={"settings": settings}))
+    study.write_preset()
+    config = resolve_config(env="square", agent="dqn", preset="tuned")
+    assert {k: config["agent"][k] for k in best} == best
+    assert config["agent"]["gamma"] == 0.8 and config["env"]["reward_noise"] == 0.1  # given, and the base's env
+    assert config["agent"]["buffer_size"] == presets.SMALL_DQN["buffer_size"]        # the base preset's agent
+    provenance = json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]["provenance"]
+    assert provenance["trial"] == 1 and provenance["value"] == 20.0 and provenance["seeds"] == list(TUNING_SEEDS)
+    assert provenance["base_preset"] == "noisy" and provenance["study"] == f"sqlite:///{out.resolve() / 'study.db'}"
+    assert {"date", "commit", "budget", "trials", "objective"} <= set(provenance)
