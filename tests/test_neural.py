@@ -49,6 +49,50 @@ def test_gradient_clipping_is_torchs_per_seed():
     assert float(norms[1]) > 3.0 and params[0].grad[1].norm() < grads[0][1].norm() / 10
 
 
+def test_a_seed_below_the_clip_threshold_is_left_exactly_as_it_was():
+    """Seed 0's norm is under max_norm, seed 1's over: seed 0's gradients are bit for bit what they
+    were (the scale is capped at 1, never above), seed 1's are scaled down to the threshold."""
+    g = torch.Generator().manual_seed(2)
+    params = [nn.Parameter(torch.zeros(2, 5, 3)), nn.Parameter(torch.zeros(2, 3))]
+    grads = [torch.randn(2, 5, 3, generator=g), torch.randn(2, 3, generator=g)]
+    grads[0][0] *= 0.01
+    grads[1][0] *= 0.01
+    grads[0][1] *= 10
+    for p, gr in zip(params, grads):
+        p.grad = gr.clone()
+    norms = clip_grad_norm_per_seed(params, max_norm=1.0)
+    assert float(norms[0]) < 1.0 < float(norms[1])
+    assert all(torch.equal(p.grad[0], gr[0]) for p, gr in zip(params, grads))
+    clipped = torch.cat([p.grad[1].flatten() for p in params]).norm()
+    assert float(clipped) == pytest.approx(1.0, rel=1e-5)
+
+
+def test_a_frozen_seed_keeps_its_weights_and_adams_moments_exactly():
+    """Seeds 0-2 learn together, then seed 1 finishes: through later updates of the others its
+    network, its target and Adam's first and second moments stay bit for bit as they were.
+    (Adam's step count is one scalar per parameter tensor, shared by the seeds; a frozen seed never
+    steps again -- lengthening a run continues from before any seed stopped.)"""
+    env, agent = build(resolve_config(seeds=[0, 1, 2], **dict(DQN_SMALL, learning_starts=4, batch_size=4)))
+    td = env.reset()
+    active = torch.ones(3, dtype=torch.bool)
+    frozen = None
+    for t in range(40):
+        td["action"] = agent.act(td)
+        out, td = env.step_and_maybe_reset(td)
+        if t == 20:
+            active[1] = False
+            frozen = [x[1].clone() for x in agent.nets.state_dict().values()]
+            moments = [v[1].clone() for st in agent.optimizers[0].state.values() for k, v in st.items()
+                       if k in ("exp_avg", "exp_avg_sq")]
+        agent.observe(out, active)
+    now = [x[1] for x in agent.nets.state_dict().values()]
+    assert len(now) == 12 and all(torch.equal(a, b) for a, b in zip(now, frozen))  # network and target
+    now_moments = [v[1] for st in agent.optimizers[0].state.values() for k, v in st.items()
+                   if k in ("exp_avg", "exp_avg_sq")]
+    assert len(moments) == 12 and all(torch.equal(a, b) for a, b in zip(now_moments, moments))
+    assert int(agent.updates[1]) < int(agent.updates[0])  # the others went on learning
+
+
 def test_seed_mean_is_the_sum_of_each_seeds_mean():
     loss = torch.rand(3, 16)  # (S, B)
     assert float(seed_mean(loss)) == pytest.approx(sum(float(loss[i].mean()) for i in range(3)), rel=1e-6)
