@@ -20,6 +20,15 @@ def seeded_global_generators():
     random.seed(20141332)
 
 
+@pytest.fixture(autouse=True)
+def script_entry(monkeypatch):
+    """Every test's commands name themselves as scripts (python scripts/X.py): a test that runs
+    ``trl-dgpq X`` sets the module's ENTRY for the process, and later tests' messages must not
+    depend on which tests ran before them."""
+    import trl_dgpq.commands
+    monkeypatch.setattr(trl_dgpq.commands, "ENTRY", None)
+
+
 def through_disk(state):
     """What a checkpoint does to a state: torch.save, then torch.load(weights_only=True)."""
     buf = io.BytesIO()
