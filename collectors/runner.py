@@ -13,8 +13,8 @@
                         goes on from
 
 Every file is replaced atomically (written to a temporary file, then renamed), so
-a kill at any moment leaves the previous version whole. ``resume`` truncates
-``episodes.csv`` to what the last checkpoint covers and continues from it; the
+a kill at any moment leaves the previous version whole. ``resume`` cuts
+``episodes.csv`` back to the rows the last checkpoint covers and continues from it; the
 rows it then writes are those the interrupted run had written (same seeds, same
 streams), so the finished file equals an uninterrupted run's, timing aside. A run
 lengthened (``lengthen``, then ``resume``) ends as a run asked for that length from
@@ -255,15 +255,36 @@ class RunFolder:
         path = self.file(EPISODES)
         return path.stat().st_size if path.exists() else 0
 
-    def truncate_csv(self, size: int) -> None:
-        path = self.file(EPISODES)
-        if size == 0:
-            if path.exists():
-                path.unlink()
+    def keep_rows(self, episodes: dict) -> None:
+        """Cut episodes.csv to the rows a checkpoint covers, each seed's first ``episodes[seed]``
+        (the rows past them come again). Chosen by (seed, episode), not by a byte offset: a
+        finished run's file has been rewritten sorted since its older checkpoints (prev, extend)
+        were taken. Rewritten atomically, and only if a row goes."""
+        path, covered = self.file(EPISODES), sum(episodes.values())
+        if not covered:
+            path.unlink(missing_ok=True)
             return
-        if self.csv_size() < size:
-            raise RunError(f"{path} is shorter than its checkpoint says ({self.csv_size()} < {size} bytes)")
-        os.truncate(path, size)
+        if not path.exists():
+            raise RunError(f"{path} is missing: its checkpoint covers {covered} episodes")
+        self._drop_unfinished_row()
+        df = self.episodes()
+        kept = df[df.episode <= df.seed.map(episodes)]
+        found = len(kept.drop_duplicates(["seed", "episode"]))
+        if len(kept) != covered or found != covered:
+            raise RunError(f"{path} does not hold the {covered} episodes its checkpoint covers once each "
+                           f"({covered - found} missing, {len(kept) - found} repeated)")
+        if len(kept) < len(df):
+            self.write_episodes(kept)
+
+    def _drop_unfinished_row(self) -> None:
+        """Cut off a last row that a crash or a full disk left half-written: it is past every
+        checkpoint, and parsed it could pass for another row (``3,1`` of ``3,12,...``)."""
+        with open(self.file(EPISODES), "rb+") as f:
+            size = f.seek(0, os.SEEK_END)
+            tail = f.seek(max(0, size - 2**16))  # far longer than a row
+            last = f.read()
+            if not last.endswith(b"\n"):
+                f.truncate(tail + last.rfind(b"\n") + 1)
 
     def episodes(self) -> pd.DataFrame:
         return read_csv_exact(self.file(EPISODES))
@@ -303,15 +324,6 @@ class RunFolder:
             raise RunError(f"{self.path} cannot be lengthened exactly: {err} (it keeps where its seeds stopped; "
                            "runs finished by versions before it have none): start it again at the new length") \
                 from None
-
-    def keep_rows(self, episodes: dict) -> None:
-        """Cut episodes.csv to each seed's first ``episodes[seed]`` episodes, sorted."""
-        df = self.episodes()
-        kept = df[df.episode <= df.seed.map(episodes)]
-        missing = sum(episodes.values()) - len(kept)
-        if missing:
-            raise RunError(f"{self.file(EPISODES)} lacks {missing} of the episodes its checkpoint covers")
-        self.write_episodes(kept)
 
     def load_checkpoint(self, log=None) -> Optional[dict]:
         """The latest checkpoint; if it cannot be read, the previous one, saying so through
@@ -472,14 +484,14 @@ def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: 
                                 env_steps=run.env_steps, before_step=memory_guard(agent, run.max_memory),
                                 time_steps=False)  # its memory is flat however long it runs (soak.py)
     if checkpoint is not None:
-        checkpoint = _restore(folder, checkpoint, env, agent, collector)
-    folder.truncate_csv(0 if checkpoint is None else int(checkpoint["csv_bytes"]))  # rows past it come again
+        _restore(folder, checkpoint, env, agent, collector)
+    folder.keep_rows(dict(zip(collector.seeds, collector.episode.tolist())))  # rows past this state come again
     every = run.checkpoint_every * len(run.seeds)
     next_at = (collector.episodes_done // every + 1) * every if every else None
 
     def state():
-        return dict(format=CHECKPOINT_FORMAT, csv_bytes=folder.csv_size(), episodes_done=collector.episodes_done,
-                    env=env.state_dict(), agent=agent.state_dict(), collector=collector.state_dict())
+        return dict(format=CHECKPOINT_FORMAT, episodes_done=collector.episodes_done, env=env.state_dict(),
+                    agent=agent.state_dict(), collector=collector.state_dict())
 
     def save():
         folder.save_checkpoint(state())
@@ -530,11 +542,10 @@ def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: 
     return df
 
 
-def _restore(folder: RunFolder, checkpoint: dict, env, agent, collector: OnlineCollector) -> dict:
+def _restore(folder: RunFolder, checkpoint: dict, env, agent, collector: OnlineCollector) -> None:
     """Load ``checkpoint`` into env, agent and collector. If the run's length has grown
     (``lengthen``), seeds it stopped go on; from the latest checkpoint if they had just
-    stopped there, else from checkpoint.extend.pt, with episodes.csv cut back to what
-    that covers. Returns the checkpoint loaded."""
+    stopped there, else from checkpoint.extend.pt."""
     collector.load_state_dict(checkpoint["collector"])
     if collector.to_continue().any():
         try:
@@ -547,9 +558,5 @@ def _restore(folder: RunFolder, checkpoint: dict, env, agent, collector: OnlineC
             except ValueError as err:
                 raise RunError(f"{folder.path} cannot be lengthened exactly: {err} (the state kept in {EXTEND}); "
                                "start it again at the new length") from None
-        # the CSV may be sorted (a finished run) or hold rows past this state: keep what it covers
-        folder.keep_rows(dict(zip(collector.seeds, collector.episode.tolist())))
-        checkpoint = {**checkpoint, "csv_bytes": folder.csv_size()}
     env.load_state_dict(checkpoint["env"])
     agent.load_state_dict(checkpoint["agent"])
-    return checkpoint

@@ -264,6 +264,23 @@ def test_a_damaged_checkpoint_falls_back_to_the_previous_one_and_resumes_to_the_
         part.load_checkpoint(log=lambda line: None)
 
 
+def test_a_row_left_half_written_is_cut_off_on_resume(tmp_path, stop_run_after):
+    """A crash or a full disk in the middle of an append leaves part of a row, here "1,1" of seed 1's
+    episode 1x: resume keeps the rows its checkpoint covers by (seed, episode), so it must cut that
+    part off first rather than read it as a second row of seed 1's episode 1."""
+    config = resolve_config(seeds=[0, 1], episodes=4, max_steps=30, checkpoint_every=1)
+    whole = runner.RunFolder.create(str(tmp_path / "whole"), "x")
+    runner.start(config, whole, progress=False)
+    part = runner.RunFolder.create(str(tmp_path / "part"), "x")
+    stop_run_after(3, "crash")
+    with pytest.raises(RuntimeError):
+        runner.start(config, part, progress=False)
+    with open(part.file("episodes.csv"), "a") as f:
+        f.write("1,1")
+    runner.resume(part, runner.resumable_config(part), progress=False)
+    pd.testing.assert_frame_equal(episodes(whole), episodes(part))
+
+
 def test_a_sigint_during_the_last_step_leaves_a_finished_sorted_run(tmp_path, stop_run_after):
     """Liquidation episodes all take 10 steps, so 2 seeds x 3 episodes end in 3 batches of 2 rows;
     SIGINT right after the last batch: nothing is left to do, so the run is finished, its CSV
@@ -347,6 +364,30 @@ def test_a_kill_between_recording_the_length_and_running_it_is_resumed(tmp_path)
     runner.lengthen(part, runner.resumable_config(part, lengthen=True), episodes=4)
     assert part.status()["status"] == "interrupted"
     runner.resume(part, runner.resumable_config(part), progress=False)
+    pd.testing.assert_frame_equal(episodes(whole), episodes(part))
+
+
+def test_a_finished_run_with_a_damaged_checkpoint_lengthened_from_the_previous_one_equals_the_longer_run(
+        tmp_path, capsys):
+    """The user's issue 30: checkpoint.pt cut short, so lengthening falls back to checkpoint.prev.pt,
+    taken mid-run (every seed at 3 of 4 episodes, none stopped). Its rows were appended in the
+    order episodes ended, but the finished run has since rewritten episodes.csv sorted by seed: the
+    rows kept must be each seed's first 3 (the sorted file's first bytes hold seed 0's 4th episode
+    and a row cut in two)."""
+    base = dict(seeds=[0, 1, 2], max_steps=60)
+    whole = runner.RunFolder.create(str(tmp_path / "whole"), "x")
+    runner.start(resolve_config(episodes=6, **base), whole, progress=False)
+    part = runner.RunFolder.create(str(tmp_path / "part"), "x")
+    runner.start(resolve_config(episodes=4, checkpoint_every=3, **base), part, progress=False)
+    previous = torch.load(part.file("checkpoint.prev.pt"), weights_only=True)["collector"]
+    assert previous["episode"].tolist() == [3, 3, 3] and previous["active"].all()
+    latest = part.file("checkpoint.pt")
+    latest.write_bytes(latest.read_bytes()[: latest.stat().st_size // 2])
+    capsys.readouterr()
+    longer = runner.lengthen(part, runner.resumable_config(part, lengthen=True), episodes=6)
+    runner.resume(part, longer, progress=False)
+    assert "continuing from checkpoint.prev.pt (9 episodes done)" in capsys.readouterr().err
+    assert part.status()["status"] == "finished"
     pd.testing.assert_frame_equal(episodes(whole), episodes(part))
 
 

@@ -11,11 +11,19 @@ from typing import Optional
 import pandas as pd
 
 
+class UnreadableCSV(ValueError):
+    """A run's CSV that cannot be parsed (cut, corrupted): one line naming the file."""
+
+
 def read_csv_exact(path) -> pd.DataFrame:
     """read_csv that gives back exactly the floats written (pandas >= 3 does by default;
-    older pandas needs the round-trip parser)."""
+    older pandas needs the round-trip parser). Every command reads runs through it, so a
+    file that cannot be parsed is named here (pandas' message names only a line)."""
     exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
-    return pd.read_csv(path, **exact)
+    try:
+        return pd.read_csv(path, **exact)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
+        raise UnreadableCSV(f"cannot read {path}: {str(err).strip().splitlines()[0]}") from None
 
 
 @dataclass

@@ -70,15 +70,12 @@ def main(argv=None) -> int:
             p.error(f"{r}/episodes.csv not found (run scripts/train.py --out {r} first)")
     if args.labels and len(args.labels) != len(args.runs):
         p.error("give one label per run")
-    try:
-        runs = [load_run(r, need_config=False) for r in args.runs]
-    except ValueError as err:
-        p.error(str(err))
-    labels = args.labels or default_labels(runs)
-    return guarded("plot", lambda: draw(runs, labels, Path(args.out or args.runs[0]), args))
+    return guarded("plot", lambda: draw([load_run(r, need_config=False) for r in args.runs], args.labels,
+                                        Path(args.out or args.runs[0]), args))
 
 
 def draw(runs, labels, out: Path, args) -> int:
+    labels = labels or default_labels(runs)
     out.mkdir(parents=True, exist_ok=True)
     domains = {run.domain and run.domain.name for run in runs}  # None: a run without its config.json
     own = getattr(runs[0].domain.analysis(), "figures", None) if len(domains) == 1 and None not in domains else None
