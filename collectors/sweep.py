@@ -26,8 +26,10 @@ import os
 import shutil
 import signal
 import sys
+import threading
 import time
 import tomllib
+from contextlib import contextmanager
 from dataclasses import dataclass
 from multiprocessing.connection import wait
 from pathlib import Path
@@ -48,6 +50,11 @@ BACKENDS = ("local", "ray")
 
 class SweepError(ValueError):
     """Something wrong with what was asked (one line, exit 2)."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the sweep's process as Ctrl-C raises KeyboardInterrupt, so that it
+    stops the same way (``run_script``): its workers checkpoint, then one line."""
 
 
 @dataclass
@@ -191,14 +198,23 @@ def run_local(jobs: List[Job], workers: int, on_done: Callable[[Job, dict], None
         while pending or running:
             while pending and len(running) < workers:
                 job = pending.pop(0)
-                proc = ctx.Process(target=_job_process, args=(job.config, job.folder), name=job.name)
-                proc.start()
-                running[proc.sentinel] = (proc, job)
+                # a worker started but not yet in `running` would be left running by a SIGTERM
+                with _sigterm_held():
+                    proc = ctx.Process(target=_job_process, args=(job.config, job.folder), name=job.name)
+                    proc.start()
+                    running[proc.sentinel] = (proc, job)
             for sentinel in wait(list(running)):
-                proc, job = running.pop(sentinel)
-                proc.join()
-                on_done(job, outcome(job, proc.exitcode))
-    except KeyboardInterrupt:   # the workers got the SIGINT too: let them checkpoint and stop
+                with _sigterm_held():
+                    proc, job = running.pop(sentinel)
+                    proc.join()
+                    on_done(job, outcome(job, proc.exitcode))
+    except KeyboardInterrupt as stop:
+        # Ctrl-C reaches the workers too (one process group), a SIGTERM only this process: pass
+        # it on (they are the forkserver's children, nothing else would stop them); then let them
+        # checkpoint and stop
+        if isinstance(stop, Terminated):
+            for proc, _ in running.values():
+                proc.terminate()
         for proc, job in running.values():
             proc.join()
             on_done(job, outcome(job, proc.exitcode))
@@ -356,15 +372,57 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
 
 
 def run_script(script: str, rerun: str, body: Callable[[], int]) -> int:
-    """``body()``'s exit code; a bad request -> one line and 2, Ctrl-C -> how to go on and 130."""
+    """``body()``'s exit code; a bad request or a file that cannot be read or written -> one
+    line and 2; Ctrl-C or SIGTERM -> the workers stopped, how to go on, and 130 / 143."""
     try:
-        return body()
-    except (SweepError, runner.RunError, OSError) as err:  # OSError: a folder that cannot be written
+        with _sigterm_raises():
+            return body()
+    except (ValueError, OSError) as err:  # SweepError, RunError, a run's CSV damaged, a folder not writable
         print(f"{script}: error: {err}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"interrupted: continue with {rerun}", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as stop:
+        signum = signal.SIGTERM if isinstance(stop, Terminated) else signal.SIGINT
+        print(f"interrupted by {signum.name}: continue with {rerun}", file=sys.stderr)
+        return 128 + signum
+
+
+_SIGTERM = {"held": False, "pending": False}  # the state of the handler below (signals are per process)
+
+
+def _on_sigterm(signum, frame):
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a second SIGTERM ends the process at once
+    if _SIGTERM["held"]:
+        _SIGTERM["pending"] = True
+    else:
+        raise Terminated()
+
+
+@contextmanager
+def _sigterm_raises():
+    """SIGTERM raises Terminated in the main thread for the block (except where held)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        _SIGTERM["pending"] = False
+
+
+@contextmanager
+def _sigterm_held():
+    """Terminated raised as the block ends, not inside it. (Masking the signal would not do:
+    another thread (torch's) takes it, and Python runs the handler in the main thread anyway.)"""
+    _SIGTERM["held"] = True
+    try:
+        yield
+    finally:
+        _SIGTERM["held"] = False
+    if _SIGTERM["pending"]:
+        _SIGTERM["pending"] = False
+        raise Terminated()
 
 
 def exit_code(report: dict, rerun: str) -> int:

@@ -3,8 +3,11 @@ reported and resumable while the others finish; bad input is refused before any 
 import json
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -56,11 +59,14 @@ def one_process(config, folder):
     return rows(f.file("episodes.csv"))
 
 
+def square_text(episodes: int) -> str:
+    """SWEEP_FILE's square experiment alone, ``episodes`` per seed."""
+    return SWEEP_FILE.split("[[experiment]]\nname = \"liq\"")[0].replace("episodes = 3", f"episodes = {episodes}")
+
+
 def square_sweep(tmp_path, episodes: int, seeds_per_job: int):
-    """SWEEP_FILE's square experiment alone, longer, planned and created in tmp_path/sw:
-    (experiments, out, jobs)."""
-    text = SWEEP_FILE.split("[[experiment]]\nname = \"liq\"")[0].replace("episodes = 3", f"episodes = {episodes}")
-    experiments = sweep.read_sweep_file(write(tmp_path, text))
+    """``square_text`` planned and created in tmp_path/sw: (experiments, out, jobs)."""
+    experiments = sweep.read_sweep_file(write(tmp_path, square_text(episodes)))
     out = tmp_path / "sw"
     jobs = sweep.plan(experiments, out, seeds_per_job)
     sweep.create(out, experiments, jobs)
@@ -146,6 +152,68 @@ def test_a_nan_from_the_env_fails_that_job_with_where_and_the_others_finish(tmp_
     assert len(bad) == 1 and bad[0]["experiment"] == "liq"
     assert "NonFiniteError" in bad[0]["reason"] and "seed 0, episode 1, step" in bad[0]["reason"]
     assert (out / "square" / "episodes.csv").exists() and not (out / "liq" / "episodes.csv").exists()
+
+
+SWEEP_SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "sweep.py"
+
+
+def descendants(pid: int) -> list:
+    """The processes below ``pid``, from /proc: a sweep's forkserver, the workers it forked, its resource tracker."""
+    try:
+        children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return []
+    return [p for c in map(int, children) for p in (c, *descendants(c))]
+
+
+def alive(pid: int) -> bool:
+    """Running (not gone, nor a zombie waiting for its parent to reap it)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_sigterm_stops_the_workers_as_ctrl_c_does_and_resume_finishes(tmp_path):
+    """SIGTERM to a real sweep.py while both its jobs write rows: as Ctrl-C, the workers checkpoint
+    and stop before it exits (they are the forkserver's children, so only the sweep can stop them),
+    nothing it started outlives it, one line on stderr names --resume, exit 143; --resume then
+    continues the jobs from their checkpoints and ends with the rows of one process."""
+    experiments = sweep.read_sweep_file(write(tmp_path, square_text(20)))
+    out = tmp_path / "sw"
+    proc = subprocess.Popen([sys.executable, str(SWEEP_SCRIPT), str(tmp_path / "s.toml"), "--out", str(out),
+                             "--workers", "2", "--seeds-per-job", "2"], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    jobs = [runner.RunFolder(out / "square" / "jobs" / f"j00{k}") for k in range(2)]
+    family = []
+    try:
+        while not all((job.status() or {}).get("status") == "running" and job.csv_size() for job in jobs):
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.02)
+        family = descendants(proc.pid)
+        workers = {job.status()["pid"] for job in jobs}
+        assert workers <= set(family)
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=60)
+        assert not [pid for pid in workers if alive(pid)]           # stopped before the sweep exited
+        deadline = time.time() + 10                                 # the forkserver ends once the sweep has
+        while [pid for pid in family if alive(pid)] and time.time() < deadline:
+            time.sleep(0.05)
+        assert not [pid for pid in family if alive(pid)]
+    finally:
+        for pid in [proc.pid] + family:
+            if alive(pid):
+                os.kill(pid, signal.SIGKILL)
+    with proc.stderr:
+        err = proc.stderr.read()    # (read only now: a worker left running would hold the pipe open)
+    lines = err.strip().splitlines()
+    assert proc.returncode == 143 and len(lines) == 1 and f"--resume {out}" in lines[0], err
+    for job in jobs:
+        assert job.status()["status"] == "interrupted" and job.status()["reason"] == "SIGTERM"
+        assert job.load_checkpoint()["episodes_done"] == job.status()["episodes_done"] > 0
+    assert sweep_script.main(["--resume", str(out)]) == 0
+    pd.testing.assert_frame_equal(rows(out / "square" / "episodes.csv"),
+                                  one_process(experiments["square"], tmp_path / "single"))
 
 
 @pytest.mark.parametrize("text, message", [
