@@ -98,7 +98,8 @@ def with_env_steps(df):
 @pytest.mark.parametrize("env, agent, budget", [("square", "dgpq", {"episodes": 4}),
                                                 ("square", "dqn", {"env_steps": 10_000}),
                                                 ("square", "dqn", {"episodes": 4}),
-                                                ("liquidation", "ddpg", {"episodes": 4})])
+                                                ("liquidation", "ddpg", {"episodes": 4}),
+                                                ("liquidation", "td3", {"episodes": 4})])
 def test_suggestions_stay_in_their_ranges_and_make_valid_configs(env, agent, budget):
     space = search_space(agent_class(agent, env))
     steps = budget.get("env_steps", 0)

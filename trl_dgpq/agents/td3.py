@@ -29,6 +29,7 @@ from torchrl.data import Bounded
 from torchrl.modules import MLP
 
 from ..config import setting
+from ..tuning import LogUniform, Uniform
 from ..rng import SeedStreams, stream_id
 from .ddpg import Actor
 from .neural import SeedBatchedLearner, SeedStack, Target, build_per_seed, seed_mean
@@ -58,6 +59,17 @@ class TD3Config:
     def cross_check(self) -> None:
         if self.buffer_size < self.batch_size:
             raise ValueError(f"need 1 <= batch_size <= buffer_size, got {self.batch_size} and {self.buffer_size}")
+
+
+# What a study searches (trl_dgpq/tuning.py), DDPG's ranges for the shared settings so the
+# two are tuned alike, plus TD3's own noises.
+SEARCH_SPACE = {
+    "actor_lr": LogUniform(1e-5, 1e-3),
+    "critic_lr": LogUniform(1e-4, 1e-2),
+    "target_update": LogUniform(1e-3, 0.1),
+    "expl_noise": Uniform(0.02, 0.5),
+    "policy_noise": Uniform(0.05, 0.5),
+}
 
 
 class TwinCritic(nn.Module):
