@@ -185,6 +185,7 @@ def test_checkpoint_every_counts_episodes_per_seed(tmp_path, monkeypatch):
     assert saved == [6, 12]
 
 
+@pytest.mark.slow  # a real process; test_state's interrupted-run tests cover the same resume in-process
 def test_sigint_on_a_real_run_checkpoints_and_resumes_to_the_same_csv(tmp_path):
     """The whole path a user meets: Ctrl-C in the middle of train.py -> exit 130, one line
     naming --resume, every finished episode on disk; --resume -> the uninterrupted CSV."""
@@ -339,7 +340,9 @@ def test_storage_growth_is_estimated_by_hand():
     assert q.width == q.capacity == 2 and q.growth_bytes() == 2 * 8 * (3 * 2 * 2 * 4 + 3 * 2 * 2)
 
 
-@pytest.mark.parametrize("limit", [5_000, 8_000])
+# 5,000 (the first checkpoint fails) behind slow: 8,000 fails the CSV after a checkpoint, the path
+# that can lose rows; each is a real process, ~14 s
+@pytest.mark.parametrize("limit", [pytest.param(5_000, marks=pytest.mark.slow), 8_000])
 def test_a_full_disk_stops_the_run_in_one_line_and_resume_finishes_the_same_csv(tmp_path, limit):
     """A file-size limit (RLIMIT_FSIZE, SIGXFSZ ignored: writes past it fail with EFBIG, as on a
     full disk) in a real train.py process. Checkpoints take ~5.9 kB and rows ~95 B: at 5,000 the

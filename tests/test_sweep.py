@@ -92,6 +92,7 @@ def test_pool_gives_the_rows_of_one_process_and_of_one_worker(tmp_path):
         pd.testing.assert_frame_equal(merged.drop(columns="job"), one_process(config, tmp_path / f"single-{name}"))
 
 
+@pytest.mark.slow  # Ray's start-up: ~15 s
 def test_ray_gives_the_rows_of_the_pool(tmp_path):
     ray = pytest.importorskip("ray")
     try:

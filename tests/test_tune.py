@@ -175,6 +175,7 @@ def test_a_larger_trials_adds_trials_and_a_full_study_only_reports(tmp_path, cap
     assert lines[-1].endswith("3/3 trials done (3 complete, 0 pruned, 0 failed)")
 
 
+@pytest.mark.slow  # real processes killed mid-trial, ~8 s
 def test_a_study_continues_after_its_process_is_killed(tmp_path):
     """kill -9 in the middle of trial 0 (once its run folder has a checkpoint): the next run fails
     it, runs its parameters again from that checkpoint, and ends with the rows of a run that was
