@@ -58,6 +58,33 @@ def test_objective_steps_to_threshold_by_hand():
     assert obj.value(run) == pytest.approx((250 + 450 + 1000) / 3)
 
 
+def test_objective_measure_ignores_the_threshold_when_asked():
+    """--objective measure on the square: the same seeds as above scored by their mean steps
+    over the last 10 episodes within the budget (fewer is better), not by when they met the
+    threshold: 20, 30, (4 x 40 + 6 x 10) / 10 = 22, 25, 100; IQM = (22 + 25 + 30) / 3."""
+    per_seed_steps = {0: [20] * 12, 1: [30] * 12, 2: [40] * 10 + [10] * 6, 3: [25] * 12, 4: [100] * 10}
+    df = frame([(s, e + 1, n, 0.0) for s, steps in per_seed_steps.items() for e, n in enumerate(steps)])
+    run = Run(Path("."), df, {"run": {"env": "square", "env_steps": 1000, "episodes": 1000}})
+    obj = objective("square", "measure")
+    assert obj.threshold is None and obj.direction == "minimize"
+    assert obj.per_seed(run).tolist() == [20, 30, 22, 25, 100]
+    assert obj.value(run) == pytest.approx((22 + 25 + 30) / 3)
+    with pytest.raises(ValueError, match="objective must be"):
+        objective("square", "threshold")
+
+
+def test_a_study_keeps_its_objective_and_older_studies_read_as_report():
+    from trl_dgpq.study import Study
+    old = {"given": {}, "config": {}, "tune": {"trials": 3}}            # made before --objective existed
+    assert Study.reopen_request(old, {}, {"trials": 5})["tune"]["objective"] == "report"
+    with pytest.raises(ValueError, match="keeps its objective report"):
+        Study.reopen_request(old, {}, {"objective": "measure"})
+    measured = {**old, "tune": {"trials": 3, "objective": "measure"}}
+    assert Study.reopen_request(measured, {}, {})["tune"]["objective"] == "measure"
+    with pytest.raises(ValueError, match="keeps its objective measure"):
+        Study.reopen_request(measured, {}, {"objective": "report"})
+
+
 def test_objective_measure_at_budget_by_hand():
     """Liquidation (no threshold; less shortfall is better): each seed's mean over its last 10
     episodes ended within the budget (50 steps: episodes 1-10 of 5 steps), IQM over 4 seeds."""

@@ -65,8 +65,13 @@ class TuneConfig:
                                         length=(1, None))
     prune_after: int = setting(5, "trials that must have ended before MedianPruner stops any "
                                   "(its n_startup_trials)", within="[0, inf)")
+    objective: str = setting("report", "what a trial is scored by: 'report', what report.py shows (steps to the "
+                                       "domain's threshold where it has one, else its measure at the budget), or "
+                                       "'measure', the measure at the budget even where there is a threshold (a "
+                                       "threshold few trials meet scores them all alike: the budget)",
+                             choices=("report", "measure"))
 
-    FIXED = ("sampler_seed", "stages", "prune_after")  # kept by the study from its first run
+    FIXED = ("sampler_seed", "stages", "prune_after", "objective")  # kept by the study from its first run
 
     def cross_check(self) -> None:
         if list(self.stages) != sorted(set(self.stages)) or self.stages[-1] != 1:
@@ -161,7 +166,7 @@ class Study:
         self.name = self.out.resolve().name
         self.tune = from_dict(TuneConfig, request["tune"])
         self.config = request["config"]
-        self.objective = objective(self.config["run"]["env"])
+        self.objective = objective(self.config["run"]["env"], self.tune.objective)
         agent_cls = classes(self.config["run"])[1]
         given = split_overrides(self.given_agent_env(), *classes(self.config["run"]))
         self.space = {k: r for k, r in search_space(agent_cls).items() if find_leaf(agent_cls.Config, k).key
@@ -208,9 +213,10 @@ class Study:
         """The stored request, its trials and workers updated from ``tune_given``; ValueError if
         ``given`` (over the stored settings) or the fixed TuneConfig settings ask for another study."""
         tune = to_dict(from_dict(TuneConfig, {**stored["tune"], **tune_given}))
+        kept = to_dict(from_dict(TuneConfig, stored["tune"]))  # a study made before a setting existed: its default
         for key in TuneConfig.FIXED:
-            if tune[key] != stored["tune"][key]:
-                raise ValueError(f"the study keeps its {key} {stored['tune'][key]}: continue it without "
+            if tune[key] != kept[key]:
+                raise ValueError(f"the study keeps its {key} {kept[key]}: continue it without "
                                  f"--{key.replace('_', '-')}")
         if given:
             config = resolve_config({**stored["given"], **given})
