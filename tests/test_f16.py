@@ -86,6 +86,42 @@ def test_specs_and_a_step_by_hand():
         torch.testing.assert_close(out["observation"][i] * env.scale, x)
 
 
+def decision_by_hand(x, e, steps):
+    """(state, summed reward) after ``steps`` simulator steps of 0.05 s with elevator ``e`` held:
+    Runge-Kutta on the continuous model, the reward of each step by its formula."""
+    a, b = (t.numpy() for t in continuous())
+    total = 0.0
+    for _ in range(steps):
+        x = rk4(a, b, x, e, 0.05, 50)
+        total += -abs(x[0]) / 100 - abs(V_T0 * (x[3] - x[2])) / 100 - abs(e)
+    return x, total
+
+
+def test_a_decision_of_five_steps_holds_the_elevator_and_sums_their_rewards():
+    env = F16Env([0, 1], noise_v=0.0, noise_alpha=0.0, decision_steps=5)
+    td = env.reset()
+    td["action"] = torch.tensor([0, 1])  # elevator -1 (nose up), 0
+    out = env.step(td)["next"]
+    for i, e in enumerate((-1.0, 0.0)):
+        x, reward = decision_by_hand(np.array([20.0, 0.0, 0.01, 0.01, 0.0]), e, 5)
+        assert float(out["reward"][i]) == pytest.approx(reward, rel=1e-9)
+        np.testing.assert_allclose((out["observation"][i] * env.scale).numpy(), x, rtol=1e-8, atol=1e-10)
+
+
+def test_leaving_the_envelope_costs_the_remaining_simulator_steps():
+    """Out after the first decision of 5 steps, with 9 of 10 decisions left: 45 steps at
+    h_max / 100 each, on top of the decision's own reward."""
+    x, reward = decision_by_hand(np.array([20.0, 0.0, 0.01, 0.01, 0.0]), -1.0, 5)
+    h_max = (20.0 + abs(x[0])) / 2                   # between the start and where the decision ends
+    assert abs(x[0]) > h_max > 20.0
+    env = F16Env([0], noise_v=0.0, noise_alpha=0.0, decision_steps=5, max_steps=10, h_max=h_max)
+    td = env.reset()
+    td["action"] = torch.tensor([0])
+    out = env.step(td)["next"]
+    assert bool(out["terminated"][0])
+    assert float(out["reward"][0]) == pytest.approx(reward - 45 * h_max / 100, rel=1e-9)
+
+
 def test_doing_nothing_diverges_and_leaving_the_envelope_costs_the_rest():
     env = F16Env([0, 1, 2], max_steps=4000)
     total, terminated, _ = rollout(env, lambda td: torch.ones(3, dtype=torch.long))

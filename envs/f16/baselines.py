@@ -74,7 +74,7 @@ class LQRPolicy(ElevatorLaw):
     @classmethod
     def make(cls, cfg, info, seeds):
         env = info.config
-        a, b = discretise(env.dt)
+        a, b = discretise(env.dt * env.decision_steps)  # one decision: the elevator held over it
         rate = torch.tensor([0.0, 0.0, -V_T0, V_T0, 0.0], dtype=torch.float64) / 100  # ḣ / 100 = rate · x
         q = torch.diag(torch.tensor([1e-4, 0, 0, 0, 0], dtype=torch.float64)) + torch.outer(rate, rate)
         return cls(cfg, env.elevator_deg, lqr_gain(a, b, q, cfg.r))

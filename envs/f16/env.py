@@ -26,6 +26,10 @@ What GWH14 do not state, chosen here (and why):
   ``attitude_max`` or |q| > ``rate_max``. Leaving it costs what the remaining steps would
   at the envelope's edge (|h − h_d| = h_max, |ḣ| = 0, no elevator): ending early is
   never cheaper than flying on;
+- the decision interval: GWH14's 0.05 s may be the simulator's step rather than the
+  agent's. ``decision_steps`` k > 1 holds the elevator over k simulator steps and sums
+  their rewards (so an episode's reward keeps GWH14's scale); ``max_steps`` counts
+  decisions. The presets' "flight" (issue 28) decides every 0.25 s;
 - the observation is the state divided by the envelope's half-widths (V_T by
   ``vt_scale``), so every component is in [−1, 1] while the episode runs. The state in
   its own units is in each step's TensorDict as ``state``.
@@ -46,7 +50,9 @@ from .dynamics import climb_rate, discretise, rows_times
 @dataclass
 class F16Config:
     """Altitude hold of an F-16 (SPEC 3.4)."""
-    dt: float = setting(0.05, "time step, s (GWH14)", within="(0, 1]")
+    dt: float = setting(0.05, "simulator time step, s (GWH14)", within="(0, 1]")
+    decision_steps: int = setting(1, "simulator steps per decision: the elevator is held over them and their "
+                                     "rewards summed (1: GWH14's 0.05 s per decision)", within="[1, 100]")
     elevator_deg: float = setting(1.0, "elevator deflection of actions -1 / +1, degrees", within="(0, 25]")
     h0: float = setting(20.0, "altitude error h - h_d at the start, ft", within="[-1000, 1000]")
     pitch0: float = setting(0.01, "alpha and theta at the start, rad", within="[-0.3, 0.3]")
@@ -56,7 +62,7 @@ class F16Config:
     vt_scale: float = setting(100.0, "observation scale of the airspeed deviation, ft/s", within="(0, inf)")
     attitude_max: float = setting(0.5, "envelope: largest |alpha| and |theta|, rad", within="(0, 1.5]")
     rate_max: float = setting(1.0, "envelope: largest |q|, rad/s", within="(0, inf)")
-    max_steps: int = setting(200, "steps per episode (truncation)", within="[1, inf)")
+    max_steps: int = setting(200, "decisions per episode (truncation)", within="[1, inf)")
 
     def cross_check(self) -> None:
         if abs(self.h0) >= self.h_max or abs(self.pitch0) >= self.attitude_max:
@@ -105,14 +111,16 @@ class F16Env(SeedBatchedEnv):
     def _transition(self, action):
         c = self.cfg
         e = self.elevator(action)
-        x = rows_times(self.state, self.ad.T) + (e * c.elevator_deg)[:, None] * self.bd
-        noise = self.rng.normal(2)                                       # the seed's own stream
-        x[:, 1] += c.noise_v * noise[:, 0]
-        x[:, 2] += c.noise_alpha * noise[:, 1]
-        self.state.copy_(x)
-        reward = -x[:, 0].abs() / 100 - climb_rate(x).abs() / 100 - e.abs()
+        reward = torch.zeros_like(e)
+        for _ in range(c.decision_steps):                                # the elevator held
+            x = rows_times(self.state, self.ad.T) + (e * c.elevator_deg)[:, None] * self.bd
+            noise = self.rng.normal(2)                                   # the seed's own stream
+            x[:, 1] += c.noise_v * noise[:, 0]
+            x[:, 2] += c.noise_alpha * noise[:, 1]
+            self.state.copy_(x)
+            reward = reward - x[:, 0].abs() / 100 - climb_rate(x).abs() / 100 - e.abs()
         outside = (x.abs() > self.scale)[:, [0, 2, 3, 4]].any(-1)       # airspeed has no envelope
-        left = (self.max_steps - (self.t + 1)).to(torch.float64)
+        left = (self.max_steps - (self.t + 1)).to(torch.float64) * c.decision_steps  # simulator steps
         reward = torch.where(outside, reward - left * c.h_max / 100, reward)
         return self._observe(), reward, outside
 
