@@ -260,6 +260,20 @@ def test_median_pruner_stops_a_trial_below_the_median(tmp_path, monkeypatch):
     assert load_run(folder).df.episode.max() == 1 and sorted(p.name for p in folder.iterdir()) == sorted(KEEP)
 
 
+def test_each_base_preset_keeps_its_own_tuned_preset(tmp_path, monkeypatch):
+    """The square's default is "shaped": a study on it writes "tuned", one on "noisy" writes
+    "noisy-tuned", and neither replaces the other."""
+    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+    assert presets.tuned_name("square", "shaped") == "tuned" and presets.tuned_name("square", "noisy") == "noisy-tuned"
+    presets.write_tuned("square", "dqn", "tuned", {"env": {}, "agent": {"lr": 0.002}}, {})
+    presets.write_tuned("square", "dqn", "noisy-tuned", {"env": {"reward_noise": 0.1}, "agent": {"lr": 0.004}}, {})
+    presets.write_tuned("square", "dgpq", "tuned", {"env": {}, "agent": {"lipschitz": 0.5}}, {})
+    assert resolve_config(env="square", agent="dqn", preset="tuned")["agent"]["lr"] == 0.002
+    assert resolve_config(env="square", agent="dqn", preset="noisy-tuned")["agent"]["lr"] == 0.004
+    assert resolve_config(env="square", agent="dgpq", preset="tuned")["agent"]["lipschitz"] == 0.5
+    assert "shaped" in presets.preset_table("square", "dqn")  # the domain's own presets stay
+
+
 def test_the_best_trial_round_trips_as_the_tuned_preset(tmp_path, monkeypatch):
     """--write-preset: the base preset the study ran on (its env section too), the settings given
     to it, the best trial's over them; resolve_config(preset="tuned") gives them back."""
@@ -271,11 +285,13 @@ def test_the_best_trial_round_trips_as_the_tuned_preset(tmp_path, monkeypatch):
     for value, settings in [(50.0, {"lr": 0.0002}), (20.0, best)]:
         study.load().add_trial(optuna.trial.create_trial(value=value, user_attrs={"settings": settings}))
     study.write_preset()
-    config = resolve_config(env="square", agent="dqn", preset="tuned")
+    with pytest.raises(ValueError, match="unknown preset 'tuned'"):  # the base preset is not the default
+        resolve_config(env="square", agent="dqn", preset="tuned")
+    config = resolve_config(env="square", agent="dqn", preset="noisy-tuned")
     assert {k: config["agent"][k] for k in best} == best
     assert config["agent"]["gamma"] == 0.8 and config["env"]["reward_noise"] == 0.1  # given, and the base's env
     assert config["agent"]["buffer_size"] == presets.SMALL_DQN["buffer_size"]        # the base preset's agent
-    provenance = json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]["provenance"]
+    provenance = json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]["noisy-tuned"]["provenance"]
     assert provenance["trial"] == 1 and provenance["value"] == 20.0 and provenance["seeds"] == list(TUNING_SEEDS)
     assert provenance["base_preset"] == "noisy" and provenance["study"] == f"sqlite:///{out.resolve() / 'study.db'}"
     assert {"date", "commit", "budget", "trials", "objective"} <= set(provenance)

@@ -5,9 +5,11 @@ building blocks several domains share and the lookup.
 
 Keys are setting names as on the command line (``noise_var``, or dotted paths).
 
-A study's best trial (``trl-dgpq tune --write-preset``) is a preset too, named ``tuned``: it
-lives in ``envs/<domain>/tuned.json`` beside the domain's presets, keyed by env name and
-agent, with its provenance, and the lookup below adds it to every domain's table.
+A study's best trial (``trl-dgpq tune --write-preset``) is a preset too, named ``tuned`` when
+the study ran on the env's default preset and ``<preset>-tuned`` otherwise (the noisy
+square's is "noisy-tuned", so it never replaces the square's "tuned"): it lives in
+``envs/<domain>/tuned.json`` beside the domain's presets, keyed by env name, agent and
+preset name, with its provenance, and the lookup below adds it to every domain's table.
 """
 from __future__ import annotations
 
@@ -40,8 +42,14 @@ def tuned_file(env: str) -> Path:
     return Path(importlib.import_module(domain(env).package).__file__).parent / "tuned.json"
 
 
+def tuned_name(env: str, base: str) -> str:
+    """The name of a study's preset run on preset ``base`` of ``env``."""
+    return TUNED if base == default_preset(env) else f"{base}-{TUNED}"
+
+
 def tuned_entries(env: str) -> dict:
-    """{agent: {"preset": ..., "provenance": ...}} of ``env`` in its domain's tuned.json."""
+    """{agent: {preset name: {"preset": ..., "provenance": ...}}} of ``env`` in its domain's
+    tuned.json."""
     path = tuned_file(env)
     try:
         return json.loads(path.read_text()).get(env, {})
@@ -51,12 +59,12 @@ def tuned_entries(env: str) -> dict:
         raise ValueError(f"cannot read the tuned presets in {path}: {err}") from None
 
 
-def write_tuned(env: str, agent: str, preset: dict, provenance: dict) -> Path:
-    """Record ``preset`` as ``env``'s ``tuned`` preset of ``agent`` (the file's other entries kept);
+def write_tuned(env: str, agent: str, name: str, preset: dict, provenance: dict) -> Path:
+    """Record ``preset`` as ``env``'s preset ``name`` of ``agent`` (the file's other entries kept);
     the file is replaced whole (a temporary file, then a rename)."""
     path = tuned_file(env)
     data = json.loads(path.read_text()) if path.exists() else {}
-    data.setdefault(env, {})[agent] = {"preset": preset, "provenance": provenance}
+    data.setdefault(env, {}).setdefault(agent, {})[name] = {"preset": preset, "provenance": provenance}
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
     os.replace(tmp, path)
@@ -64,12 +72,12 @@ def write_tuned(env: str, agent: str, preset: dict, provenance: dict) -> Path:
 
 
 def preset_table(env: str, agent: str):
-    """{preset name: entry} of ``agent`` on ``env``, with its ``tuned`` preset if a study wrote
-    one (None: no presets)."""
+    """{preset name: entry} of ``agent`` on ``env``, with the tuned presets studies wrote (None:
+    no presets)."""
     from trl_dgpq.envs import domain, split_name
     table = domain(env).presets(agent, split_name(env)[1])
     tuned = tuned_entries(env).get(agent)
-    return table if tuned is None else {**(table or {}), TUNED: tuned["preset"]}
+    return table if not tuned else {**(table or {}), **{name: e["preset"] for name, e in tuned.items()}}
 
 
 def default_preset(env: str) -> str:

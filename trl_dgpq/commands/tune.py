@@ -53,8 +53,9 @@ def make_parser() -> Parser:
                    help="Optuna storage instead of sqlite:///DIR/study.db: processes on other machines or Ray tasks "
                         "fill the same study when given the same URL (and DIR, on a shared filesystem)")
     p.add_argument("--write-preset", action="store_true",
-                   help="write the best trial as the preset 'tuned' of this env and agent (envs/<domain>/tuned.json, "
-                        "with its provenance): train.py --preset tuned")
+                   help="write the best trial as the preset 'tuned' of this env and agent, '<preset>-tuned' if the "
+                        "study ran on another preset than the env's default (envs/<domain>/tuned.json, with its "
+                        "provenance): train.py --preset tuned")
     p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
                    help="any run, env or agent setting, e.g. --set gp.noise_var=0.2 (repeatable)")
     add_setting_flags(p, {**{leaf.key: [("TuneConfig", leaf)] for leaf in leaves(TuneConfig)}, **cli_owners()})
@@ -97,8 +98,11 @@ def _main(argv=None) -> int:
             path = study.write_preset()
         except ValueError as err:
             parser.error(str(err))
-        env, agent = study.config["run"]["env"], study.config["run"]["agent"]
-        print(f"wrote preset 'tuned' to {path}: {command('train')} --env {env} --agent {agent} --preset tuned")
+        from trl_dgpq.presets import tuned_name
+        run = study.config["run"]
+        name = tuned_name(run["env"], run["preset"])
+        print(f"wrote preset '{name}' to {path}: {command('train')} --env {run['env']} --agent {run['agent']} "
+              f"--preset {name}")
     return 0
 
 
