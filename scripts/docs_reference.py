@@ -1,0 +1,80 @@
+#!/usr/bin/env python
+"""Write each command's ``--help`` into docs/commands.md, between its markers
+``<!-- help: NAME -->`` and ``<!-- /help -->``; ``--check`` only says whether the page is
+up to date (tests/test_docs.py runs that check in ``make test``).
+
+    python scripts/docs_reference.py            # after changing a command's options
+    python scripts/docs_reference.py --check    # exit 1 and name the commands out of date
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib
+import io
+import os
+import re
+import sys
+from pathlib import Path
+from unittest import mock
+
+ROOT = Path(__file__).resolve().parent.parent
+PAGE = ROOT / "docs" / "commands.md"
+COMMANDS = ("train", "evaluate", "plot", "report", "sweep", "reproduce", "tune")
+WIDTH = "100"  # argparse wraps at $COLUMNS: fixed, so the page does not depend on the terminal
+CORES = 2      # sweep's and reproduce's --workers default to the machine's cores: shown as N
+BLOCK = re.compile(r"(<!-- help: (\w+) -->\n)(.*?)(<!-- /help -->)", re.S)
+
+
+def help_text(name: str) -> str:
+    """``trl-dgpq NAME --help`` as the installed command prints it, at a fixed width."""
+    sys.path.insert(0, str(ROOT))
+    import trl_dgpq.commands
+    old_entry, old_columns = trl_dgpq.commands.ENTRY, os.environ.get("COLUMNS")
+    trl_dgpq.commands.ENTRY, os.environ["COLUMNS"] = "trl-dgpq", WIDTH
+    out = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out), contextlib.suppress(SystemExit), \
+                mock.patch("os.cpu_count", return_value=CORES):
+            importlib.import_module(f"trl_dgpq.commands.{name}").main(["--help"])
+    finally:
+        trl_dgpq.commands.ENTRY = old_entry
+        if old_columns is None:
+            os.environ.pop("COLUMNS", None)
+        else:
+            os.environ["COLUMNS"] = old_columns
+    return out.getvalue().rstrip().replace(f"the cores, {CORES})", "the cores, N)") + "\n"
+
+
+def render(page: str) -> str:
+    """The page with every help block regenerated."""
+    def block(m):
+        return f"{m.group(1)}```text\n{help_text(m.group(2))}```\n{m.group(4)}"
+    return BLOCK.sub(block, page)
+
+
+def stale(page: str) -> list:
+    """The commands whose block differs from their ``--help`` (or that have no block)."""
+    blocks = {m.group(2): m.group(3) for m in BLOCK.finditer(page)}
+    return [n for n in COMMANDS if blocks.get(n) != f"```text\n{help_text(n)}```\n"]
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="docs_reference.py", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--check", action="store_true", help="change nothing; exit 1 if the page is out of date")
+    args = p.parse_args(argv)
+    page = PAGE.read_text()
+    if args.check:
+        out = stale(page)
+        if out:
+            print(f"{PAGE.relative_to(ROOT)}: out of date for {', '.join(out)}; run python scripts/docs_reference.py",
+                  file=sys.stderr)
+            return 1
+        return 0
+    PAGE.write_text(render(page))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
