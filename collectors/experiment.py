@@ -85,7 +85,7 @@ class RunConfig:
     max_memory: float = setting(0.0, "GiB this process may use: a run whose storage would grow past it (or past "
                                      "the machine's available memory, always checked) stops first, checkpointed "
                                      "(0: no limit of its own)", within="[0, inf)")
-    threads: int = setting(1, "torch intra-op threads (README \"Threads\": 1 was fastest for every agent, seed "
+    threads: int = setting(1, "torch intra-op threads (docs/running-at-scale.md, \"Threads\": 1 was fastest for every agent, seed "
                               "count and load measured but one; 2 were 2-50x slower on a loaded machine)",
                            within="[1, inf)")
 

@@ -168,7 +168,7 @@ def test_importing_the_core_imports_no_simulator():
 
 
 def test_the_worked_examples_corridor_and_constant():
-    """README's worked examples. Without slip, always "right" takes length - 1 steps, by hand;
+    """The docs' worked examples (docs/domains/corridor.md, docs/architecture.md). Without slip, always "right" takes length - 1 steps, by hand;
     with slip 0.25 a step advances 1 - 2 (0.25) = 0.5 cells on average: about 2 (length - 1).
     The constant agent finds its action by the env's name for it, and refuses what it cannot do."""
     from trl_dgpq.collectors.experiment import resolve_config, run_experiment

@@ -18,7 +18,7 @@ import json
 import os
 from pathlib import Path
 
-# DQN on the suite's own envs (not tuned; README "DGPQ against DQN"): rl-baselines3-zoo's
+# DQN on the suite's own envs (not tuned; docs/agents/neural.md "DQN"): rl-baselines3-zoo's
 # CartPole-scale settings shrunk to these small tasks -- a (64, 64) network, one update per
 # step from the 256th, a target copy every 100 steps, epsilon down to 0.05 over 2,000 steps.
 SMALL_DQN = dict(hidden=(64, 64), lr=1e-3, batch_size=64, buffer_size=10_000, learning_starts=256, train_freq=1,

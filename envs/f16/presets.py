@@ -2,7 +2,7 @@
 
 DGPQ: GWH14's two Lipschitz constants, L_Q = 5 ("default") and 10 ("lq10"). GWH14 do not
 state the rest, nor the units L_Q is measured in, so these are chosen here. Each was
-probed on 4 seeds x 150-200 episodes (README "Aircraft altitude hold"):
+probed on 4 seeds x 150-200 episodes (docs/domains/f16.md):
 
 - the metric: L1 on the observation times ``state_scale``, so that one unit is 100 ft of
   altitude error, 0.025 rad of α or θ and 0.2 rad/s of q. The airspeed is dropped (weight 0):

@@ -1,4 +1,4 @@
-"""Presets of gymnasium's classic control (README "DGPQ against DQN"). DGPQ sees observations in
+"""Presets of gymnasium's classic control (docs/domains/gym.md). DGPQ sees observations in
 the unit box, DQN gymnasium's own (``observations="raw"``, as SB3 and the zoo feed their
 networks). Any other discrete gymnasium id runs every agent with the preset ``DEFAULT``: no
 overrides but DQN's raw observations."""
@@ -54,8 +54,8 @@ PRESETS = {
     # (probed: L_Q 2-200 on 4 seeds x 5,000 steps; these were the best). The exact GP in both
     # presets, so the kernel is their only difference.
     # DQN "default": rl-baselines3-zoo's tuned settings for these envs (ZOO_DQN), with epsilon's
-    # decay over the zoo's exploration_fraction of the budget this suite gives them (README "DGPQ
-    # against DQN": 20,000 / 30,000 / 20,000 steps), as the zoo does when run with a shorter
+    # decay over the zoo's exploration_fraction of the budget this suite gives them (docs/agents/neural.md
+    # "DQN": 20,000 / 30,000 / 20,000 steps), as the zoo does when run with a shorter
     # n_timesteps. DQNConfig's defaults are the zoo's Acrobot-v1 settings. DQN "zoo": the zoo's
     # own budget (run it with --env-steps n_timesteps; scripts/bench_parity.py does).
     "CartPole-v1": {

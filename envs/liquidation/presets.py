@@ -1,4 +1,4 @@
-"""Presets of liquidation (SPEC 3.2; README "Optimal liquidation"): "shortfall" is the default reward."""
+"""Presets of liquidation (SPEC 3.2; docs/domains/liquidation.md): "shortfall" is the default reward."""
 from trl_dgpq.presets import SMALL_DQN
 
 DEFAULT = "shortfall"
@@ -24,7 +24,7 @@ PRESETS = {
     # TD3 (agents/td3.py): the TD3 paper's settings (TD3Config's defaults), on either reward.
     "td3": {"shortfall": {}, "utility-ratio": UTILITY_RATIO},
     "dgpq": {
-        # Tuned on the shortfall reward (README "Optimal liquidation" says why): the state is
+        # Tuned on the shortfall reward (docs/domains/liquidation.md says why): the state is
         # (trades left, shares left) -- in a random walk past returns predict nothing, so the
         # log-returns are dropped --, undiscounted like the objective, Q̂ optimistic at 0 (costs
         # are positive), L_Q (the default 1) and the GP sized to the reward in $M.

@@ -1,4 +1,4 @@
-"""Presets of block pushing (SPEC 3.3; README "Block pushing")."""
+"""Presets of block pushing (SPEC 3.3; docs/domains/push.md)."""
 from trl_dgpq.presets import SMALL_DQN, rbf_and_manifold
 
 DEFAULT = "shaped"

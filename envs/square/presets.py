@@ -1,4 +1,4 @@
-"""Presets of the square (SPEC 3.1). Why they differ: README "The square domain and its presets"."""
+"""Presets of the square (SPEC 3.1). Why they differ: docs/domains/square.md."""
 from trl_dgpq.presets import SMALL_DQN
 
 DEFAULT = "shaped"
@@ -28,7 +28,7 @@ PRESETS = {
         # nearby states count too. RBF vs manifold. (Probed on 4 seeds x 60 episodes: with noise
         # 0.2, sigma_tol2 0.01 or 0.005 and eps1 0.05 or 0.1, RBF relapsed to the cap in later
         # episodes; these settings reached the goal in 98 % of episodes. Over 10,000 steps they
-        # relapse too: README "DGPQ against DQN" says why.)
+        # relapse too: docs/compare.md says why.)
         "noisy": {"env": NOISY_SQUARE, "agent": NOISY_DGPQ},
         "noisy-manifold": {"env": NOISY_SQUARE, "agent": dict(NOISY_DGPQ, kernel="manifold")},
     },

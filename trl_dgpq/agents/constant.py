@@ -1,5 +1,5 @@
 """The same action every step: a yardstick where one action is optimal (the corridor's
-"right"), a floor where none is, and the worked example of an agent (README "Adding an
+"right"), a floor where none is, and the worked example of an agent (docs/architecture.md, "Adding an
 agent"). No learning and no state."""
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Reproduce every experiment of the seed report as one sweep, then its figures and REPORT.md.
 
-    python scripts/reproduce.py                    # --scale quick (README "Reproducing the seed report": times)
+    python scripts/reproduce.py                    # --scale quick (docs/reproducing.md: times)
     python scripts/reproduce.py --scale full       # 1,000 liquidation episodes, 100 on the square and push
     python scripts/reproduce.py --scale report     # the seed report's own lengths: liquidation 11,000
                                                    # episodes, DDPG at gamma 0.01 too (many hours: run it

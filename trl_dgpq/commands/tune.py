@@ -9,7 +9,7 @@
 The run settings are train's (--episodes, --env-steps, --seeds, --preset, --set KEY=VALUE,
 ...); the agent's SEARCH_SPACE (beside its config) says what is searched, but for a
 setting given here, which is kept. Seeds default to 1000-1004; the reporting seeds (0-99)
-are refused. The objective is what report.py shows for the domain (README "Tuning"):
+are refused. The objective is what report.py shows for the domain (docs/running-at-scale.md, "Tuning"):
 steps to the threshold, else the measure at the budget, IQM over the seeds. Optuna's TPE
 sampler (seeded) picks the settings; a trial runs in stages and MedianPruner stops it
 after one if its learning curve is below the median there.
