@@ -5,12 +5,12 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-all bench reproduce compare clean
+.PHONY: run test test-all docs bench reproduce compare clean
 
 $(STAMP): pyproject.toml setup.py
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e ".[test,ray]"
+	$(BIN)/pip install -q -e ".[test,ray,docs]"
 	touch $(STAMP)
 
 run: $(STAMP)
@@ -26,6 +26,10 @@ test: $(STAMP)
 # Everything, the slow checks too (real processes, Ray, long learning curves).
 test-all: $(STAMP)
 	@start=$$(date +%s); $(PYTEST) -m "" && echo "make test-all: $$(( $$(date +%s) - start )) s"
+
+# The docs site (docs/, mkdocs.yml) into site/; `make test` builds it too, with --strict (tests/test_docs.py).
+docs: $(STAMP)
+	$(BIN)/mkdocs build --strict
 
 reproduce: $(STAMP)
 	$(BIN)/python scripts/reproduce.py
