@@ -335,12 +335,13 @@ class RunFolder:
         try:
             return self._read_checkpoint(latest)
         except DamagedCheckpoint as err:  # another format is not damage: no fallback
+            again = "; no checkpoint of this run can be read: start it again (--overwrite)"
             if not previous.exists():
-                raise RunError(str(err)) from None
+                raise RunError(f"{err}{again}") from None
             try:
                 state = self._read_checkpoint(previous)
             except DamagedCheckpoint as err2:
-                raise RunError(f"{err}; and {err2}") from None
+                raise RunError(f"{err}; and {err2}{again}") from None
             (log or (lambda line: print(line, file=sys.stderr)))(
                 f"{err}; continuing from {previous.name} ({state['episodes_done']} episodes done)")
             return state
@@ -351,14 +352,29 @@ class RunFolder:
         try:
             state = torch.load(path, weights_only=True)
         except Exception as err:  # a damaged file, or one holding more than plain data
-            raise DamagedCheckpoint(f"cannot read {path}: {type(err).__name__}: "
-                                    f"{str(err).splitlines()[0][:200]}") from None
+            raise DamagedCheckpoint(f"cannot read {path}: {damage(path, err)}") from None
         if not isinstance(state, dict):
             raise DamagedCheckpoint(f"cannot read {path}: it holds a {type(state).__name__}, not a checkpoint")
         if state.get("format") != CHECKPOINT_FORMAT:
             raise RunError(f"{path} has checkpoint format {state.get('format')}, this code reads {CHECKPOINT_FORMAT}: "
                            "it was written by an older version, which can resume it; or start the run again")
         return state
+
+
+def damage(path: Path, err: Exception) -> str:
+    """What is wrong with a checkpoint torch could not load, in our words: torch's own text is
+    long (cut, it ends mid-sentence) and, for a file that is not plain data, advises loading
+    with weights_only=False, which would run code from the file. torch writes zip archives."""
+    import pickle
+    import zipfile
+    if not zipfile.is_zipfile(path):
+        return ("the file is cut short (a write that did not finish, or a full disk) or damaged"
+                if path.stat().st_size and isinstance(err, RuntimeError) else
+                "the file is damaged: it is not a checkpoint (torch writes zip archives)")
+    if isinstance(err, pickle.UnpicklingError):
+        return ("it holds more than plain data (tensors, numbers, strings), so it is not a checkpoint this "
+                "suite wrote; it is not loaded, as loading it could run code from the file")
+    return f"the file is damaged ({type(err).__name__} while reading it)"
 
 
 @contextmanager

@@ -45,7 +45,9 @@ def test_a_planted_pickle_is_refused_by_resume_and_evaluate_without_running(wher
     if where == "whole file":  # refused unread
         with pytest.raises(SystemExit) as stop:
             train.main(["--resume", str(out), "--no-progress"])
-        assert stop.value.code == 2 and "cannot read" in capsys.readouterr().err
+        err = capsys.readouterr().err
+        assert stop.value.code == 2 and "cannot read" in err and "more than plain data" in err
+        assert "weights_only" not in err  # torch's advice would run the file's code
         with pytest.raises(RunError, match="cannot read"):
             evaluate(out)
     else:

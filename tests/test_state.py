@@ -256,12 +256,15 @@ def test_a_damaged_checkpoint_falls_back_to_the_previous_one_and_resumes_to_the_
     lines = []
     state = part.load_checkpoint(log=lines.append)
     assert state["episodes_done"] == kept and len(lines) == 1 and "continuing from checkpoint.prev.pt" in lines[0]
+    assert "the file is cut short" in lines[0] and "zip" not in lines[0]                # our words, not torch's
     runner.resume(part, runner.resumable_config(part), progress=False)
     pd.testing.assert_frame_equal(episodes(whole), episodes(part))            # the CSV cut back to it, redone
     for path in (latest, previous):
         path.write_bytes(b"not a checkpoint")
-    with pytest.raises(runner.RunError, match="cannot read"):
+    with pytest.raises(runner.RunError, match="cannot read") as err:
         part.load_checkpoint(log=lambda line: None)
+    assert str(err.value).count("it is not a checkpoint") == 2 and "weights_only" not in str(err.value)
+    assert str(err.value).endswith("start it again (--overwrite)")
 
 
 def test_a_row_left_half_written_is_cut_off_on_resume(tmp_path, stop_run_after):
