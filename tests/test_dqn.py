@@ -273,3 +273,23 @@ def test_a_time_limit_is_stored_as_not_terminated():
     agent.observe(transition(n=2, truncated=True))
     stored = agent.replay.sample(4)
     assert stored["next", "done"].all() and not stored["next", "terminated"].any()
+
+
+def test_memory_estimate_is_the_full_replay_as_stored_both_observations_counted():
+    """The square (2-D observations), 3 seeds, a buffer of 8: filled by 8 real steps, the replay
+    holds per transition the observation and the next one (2 x 2 float32), the reward (float32),
+    the action (int64) and done and terminated (bool): 16 + 4 + 8 + 2 = 30 bytes, 3 x 8 x 30 = 720
+    in all; the estimate a run checks its memory by says the same (one observation: 528)."""
+    from trl_dgpq.collectors.experiment import build, memory_estimate
+    config = resolve_config(env="square", agent="dqn", seeds=[0, 1, 2], buffer_size=8, batch_size=4,
+                            learning_starts=100)
+    env, agent = build(config)
+    td = env.reset()
+    for _ in range(8):
+        td["action"] = agent.act(td)
+        td, td_next = env.step_and_maybe_reset(td)
+        agent.observe(td)
+        td = td_next
+    stored = agent.replay.storage._storage   # TorchRL's LazyTensorStorage, (capacity, S)
+    assert sum(t.nbytes for t in stored.values(True, True)) == 3 * 8 * (2 * 2 * 4 + 4 + 8 + 2) == 720
+    assert memory_estimate(config) == 720
