@@ -126,4 +126,4 @@ def test_help_is_grouped_by_owner_and_presets_can_be_listed(capsys):
     assert "--hidden" in dqn and "--lipschitz" not in dqn      # a flag is listed under its owner
     assert train.main(["--list-presets"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert any(line.split() == ["f16", "dgpq", "default", "(default),", "gamma99,", "lq10"] for line in lines)
+    assert any(line.split() == ["f16", "dgpq", "default", "(default),", "flight,", "gamma99,", "lq10"] for line in lines)
