@@ -285,6 +285,22 @@ def test_a_checkpoint_of_another_format_is_refused_in_one_line(tmp_path, capsys)
     assert exc.value.code == 2 and len(err.splitlines()) == 1 and "checkpoint format 1, this code reads 2" in err
 
 
+
+def test_the_run_lock_holds_the_writers_pid_alone(tmp_path):
+    """A lock file left with a longer pid (a writer long gone) is taken over: it then reads this
+    process's pid and nothing of the old one, and a second writer is told that pid."""
+    import os
+    folder = RunFolder(tmp_path / "r")
+    folder.path.mkdir()
+    (folder.path / runner.LOCK).write_text("9" * 12)
+    folder.acquire()
+    try:
+        assert (folder.path / runner.LOCK).read_text() == str(os.getpid())
+        with pytest.raises(runner.RunError, match=f"being written by process {os.getpid()}: wait"):
+            RunFolder(folder.path).acquire()
+    finally:
+        folder.release()
+
 def test_a_running_run_can_be_neither_overwritten_nor_resumed_by_a_second_writer(tmp_path, capsys):
     """A real train.py process writing OUT: --overwrite and --resume of OUT are refused in one
     line naming it; once it is killed (SIGKILL: no clean-up), the lock is gone with it."""
@@ -328,6 +344,21 @@ def test_a_run_whose_storage_would_outgrow_its_memory_stops_checkpointed_in_one_
     assert run("--seeds", 4, "--episodes", 20, "--qhat-capacity", 32, "--max-memory", 1 / 2**10,
                "--out", tmp_path / "roomy") == 0
 
+
+
+def test_max_memory_counts_what_the_process_holds_besides_the_growth(monkeypatch):
+    """--max-memory 1 MiB, storage to grow by 400 KiB: a process holding 500 KiB goes on (900 KiB),
+    one holding 700 KiB stops (1,100 KiB), though the growth alone fits either way."""
+    from types import SimpleNamespace
+
+    from trl_dgpq.collectors import experiment
+    monkeypatch.setattr(experiment, "available_memory", lambda: None)
+    check = experiment.memory_guard(SimpleNamespace(growth_bytes=lambda: 400 * 2**10), max_gib=2**-10)
+    monkeypatch.setattr(experiment, "resident_bytes", lambda: 500 * 2**10)
+    check()
+    monkeypatch.setattr(experiment, "resident_bytes", lambda: 700 * 2**10)
+    with pytest.raises(experiment.MemoryLimit, match="--max-memory"):
+        check()
 
 def test_storage_growth_is_estimated_by_hand():
     from trl_dgpq.qhat import LipschitzQ
