@@ -425,3 +425,18 @@ def test_a_seed_the_episode_cap_stopped_goes_on_when_the_cap_is_raised_later(tmp
         longer = runner.lengthen(part, runner.resumable_config(part, lengthen=True), **lengths)
         runner.resume(part, longer, progress=False)
     pd.testing.assert_frame_equal(episodes(whole), episodes(part))
+
+
+def test_a_budget_stops_a_seed_at_exactly_its_steps_also_when_lengthened(tmp_path):
+    """The corridor without slip, always "right": every episode takes 9 steps. A budget of 18 is
+    met exactly at the end of episode 2 (the boundary counts: no third episode); more episodes
+    allowed with the same budget add none; a budget of 27 then adds exactly one episode per seed."""
+    config = resolve_config(env="corridor", agent="constant", action="right", slip=0.0, seeds=[0, 1], env_steps=18)
+    folder = runner.RunFolder.create(str(tmp_path / "r"), "x")
+    runner.start(config, folder, progress=False)
+    steps = lambda: episodes(folder).groupby("seed")["steps"].agg(["count", "sum"]).values.tolist()  # noqa: E731
+    assert steps() == [[2, 18], [2, 18]]
+    for lengths, expect in ((dict(episodes=30), [2, 18]), (dict(env_steps=27), [3, 27])):
+        longer = runner.lengthen(folder, runner.resumable_config(folder, lengthen=True), **lengths)
+        runner.resume(folder, longer, progress=False)
+        assert steps() == [expect, expect], lengths
