@@ -46,7 +46,13 @@ F16_DGPQ = dict(gamma=0.9, v_max=0.0, state_scale=(10.0, 0.0, 20.0, 20.0, 5.0), 
 # flying is clearly worth more than holding: LQR -4.9, PD -6.4, nothing -8.8 (they were
 # -3.4, -4.0 and -2.3 at GWH14's step with gamma 0.9). DGPQ with the "default" settings
 # at gamma 0.95 still learns to hold (seeds 2000-2003, 100 episodes: -135, Q̂ 10 pairs);
-# with the metric x5 and lengthscale 10 it explores (-207 to -420, 3,077 pairs).
+# with the metric x5 and lengthscale 10 it explores (-207 to -420, 3,077 pairs). Also on
+# seeds 2000-2003 x 100 episodes, the metric on (h, theta) alone: L_Q 5 holds (-134, 3
+# pairs), L_Q 20 / lengthscale 0.5 explores (-209, 1,030 pairs), L_Q 50 / lengthscale 0.3 /
+# eps1 0.2 too (-308, 3,013 pairs). An Optuna study (30 trials, seeds 1000-1004, 100
+# episodes, the mean return of the last 10; lengthscale, L_Q, sigma_tol2, eps1, noise_var)
+# found nothing better than holding: best -134.4 (lengthscale 0.75, L_Q 1.2); 17 trials
+# pruned, the rest at -135 or exploring (-165 to -649).
 FLIGHT = dict(decision_steps=5, max_steps=40)
 
 PRESETS = {
