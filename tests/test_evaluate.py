@@ -55,6 +55,37 @@ def test_evaluation_episodes_are_new_and_a_seeds_own(tmp_path):
     assert torch.equal(again[0], b[1]) and not torch.equal(a[0], b[1])
 
 
+
+def test_evaluation_plays_the_envs_evaluation_streams_not_trainings(tmp_path):
+    """An F-16 run of a fixed action ("hold", 2 seeds x 2 episodes of 20 steps, none leaves the
+    envelope): its evaluation returns are those of a fresh env keyed for evaluation, played by hand,
+    and none is a training return (on training's streams they would all be equal)."""
+    out = trained(tmp_path, "--env", "f16", "--agent", "constant", "--action", "hold", "--max-steps", 20,
+                  "--seeds", "4,9", "--episodes", 2)
+    df = evaluate(out, episodes=2)
+    env = F16Env([4, 9], max_steps=20).for_evaluation()
+    td, rewards = env.reset(), []
+    for _ in range(40):
+        td["action"] = torch.ones(2, dtype=torch.long)
+        step, td = env.step_and_maybe_reset(td)
+        rewards.append(step["next", "reward"][:, 0])
+    by_hand = torch.stack(rewards, 1).reshape(2, 2, 20).sum(-1)   # (seed, episode)
+    assert df["return"].tolist() == pytest.approx(by_hand.flatten().tolist(), rel=1e-12)
+    training = pd.read_csv(out / "episodes.csv")
+    assert (training["steps"] == 20).all() and not np.isclose(df["return"], training["return"]).any()
+
+
+@pytest.mark.parametrize("env_class", ["square", "liquidation"])
+def test_each_stream_has_its_own_evaluation_key(env_class):
+    """The square (env noise, reward noise) and liquidation (env noise, prices) keyed for evaluation:
+    each stream draws its own numbers, none of them its training stream's nor another stream's."""
+    from trl_dgpq.envs import domain
+    Env = domain(env_class).env_class()
+    training, evaluation = Env([5, 6]), Env([5, 6]).for_evaluation()
+    names = ["rng", *(name for name, _ in Env._streams)]
+    draws = [getattr(env, name).uniform(4) for env in (training, evaluation) for name in names]
+    assert len(names) == 2 and all(not torch.equal(a, b) for i, a in enumerate(draws) for b in draws[i + 1:])
+
 def test_dqn_exploits_with_epsilon_zero_and_draws_no_exploration_number():
     agent = DQN(DQNConfig(eps_init=1.0, eps_end=1.0, hidden=(8,)), [0, 1], 3, 4)  # epsilon 1: act is random
     obs = torch.rand(2, 3)
@@ -77,11 +108,28 @@ def test_ddpg_exploits_without_noise():
     assert not torch.equal(agent.act(td), expect)  # training's action carries the OU noise
 
 
+
+@pytest.mark.parametrize("agent_class, argv", [
+    (DQN, ["--env", "corridor", "--agent", "dqn", "--episodes", 2]),
+    (DDPG, ["--env", "liquidation", "--agent", "ddpg", "--episodes", 1, "--trades", 6, "--horizon", 6])])
+def test_evaluation_acts_by_exploit_never_by_the_exploring_act(tmp_path, monkeypatch, agent_class, argv):
+    """A trained DQN (still in its random warm-up) and DDPG (OU noise) evaluated with their
+    training ``act`` made to fail: evaluation never calls it."""
+    from trl_dgpq.collectors.evaluate import evaluate_job
+    out = trained(tmp_path, "--seeds", "0,1", *argv)
+
+    def explore(self, td):
+        raise AssertionError(f"{type(self).__name__}.act (exploration) called in evaluation")
+    monkeypatch.setattr(agent_class, "act", explore)
+    df = evaluate_job(out, 2)
+    assert list(df.seed) == [0, 0, 1, 1] and list(df.episode) == [1, 2, 1, 2]
+
 def test_a_folder_without_a_checkpoint_is_one_line(tmp_path, capsys):
     with pytest.raises(RunError, match="holds no run with a checkpoint"):
         evaluate(tmp_path)
     assert evaluate_command.main([str(tmp_path), "--no-progress"]) == 2
     assert "error:" in capsys.readouterr().err
+
 
 
 def test_the_square_qhat_grid_is_the_lipschitz_envelope_by_hand():
