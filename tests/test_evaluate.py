@@ -132,6 +132,22 @@ def test_a_folder_without_a_checkpoint_is_one_line(tmp_path, capsys):
 
 
 
+def test_the_evaluate_command_compares_with_each_seeds_last_n_training_episodes(tmp_path, capsys):
+    """A budget of 60 steps on the slippery corridor: seed 0 ran 7 episodes, seed 1 6. The
+    corridor's measure (steps per episode) set by hand: 1 in seed 0's last 3 episodes, 3 in seed
+    1's, 100 before. With --episodes 3 the training side is the mean of those 6 episodes: 2 (the
+    episodes after the longest seed's 4th would give 1.8, one episode more per seed 26.5)."""
+    out = trained(tmp_path, "--env", "corridor", "--agent", "constant", "--action", "right", "--slip", 0.1,
+                  "--seeds", "0,1", "--env-steps", 60)
+    rows = pd.read_csv(out / "episodes.csv")
+    assert rows.groupby("seed").size().tolist() == [7, 6]
+    last = {0: (5, 1), 1: (4, 3)}   # seed: (the first of its last 3 episodes, their steps)
+    rows["steps"] = [last[s][1] if e >= last[s][0] else 100 for s, e in zip(rows.seed, rows.episode)]
+    rows.to_csv(out / "episodes.csv", index=False)
+    capsys.readouterr()
+    assert evaluate_command.main([str(out), "--episodes", "3", "--no-progress"]) == 0
+    assert "(the last 3 training episodes: 2);" in capsys.readouterr().out
+
 def test_the_square_qhat_grid_is_the_lipschitz_envelope_by_hand():
     """Q̂ with two pairs for action 0 (L = 2, V_max = 3, L1): Q̂_0(x) = min(3, 1 + 2|x - s1|_1,
     0.5 + 2|x - s2|_1); the other actions hold no pair: V_max everywhere."""

@@ -40,7 +40,8 @@ def run(args) -> int:
         df = evaluate(folder, args.episodes, progress=not args.no_progress)
         trained = load_run(folder)
         column, label = trained.domain.measure(trained.env_id)
-        train = trained.df[trained.df.episode > trained.df.episode.max() - args.episodes][column].mean()
+        # each seed's own last episodes: seeds a budget stopped end at different episodes
+        train = trained.df.groupby("seed").tail(args.episodes)[column].mean()
         print(f"{folder}: {label}, mean over {df.seed.nunique()} seeds x {args.episodes} evaluation episodes: "
               f"{df[column].mean():.4g} (the last {args.episodes} training episodes: {train:.4g}); "
               f"wrote {folder / EVAL}")
