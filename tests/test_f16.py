@@ -122,6 +122,54 @@ def test_leaving_the_envelope_costs_the_remaining_simulator_steps():
     assert float(out["reward"][0]) == pytest.approx(reward - 45 * h_max / 100, rel=1e-9)
 
 
+
+def test_airspeed_and_angle_of_attack_noises_are_two_draws_of_the_seeds_stream():
+    """One step holding the elevator: the state is the noiseless step plus noise_v times the seed's
+    first normal draw on V_T and noise_alpha times its second on alpha (not the first again)."""
+    from trl_dgpq.rng import ENV_STREAM, SeedStreams
+    env = F16Env([3], noise_v=2.0, noise_alpha=1e-3)
+    td = env.reset()
+    td["action"] = torch.tensor([1])
+    got = env.step(td)["next", "state"][0].numpy()
+    x, _ = decision_by_hand(np.array([20.0, 0.0, 0.01, 0.01, 0.0]), 0.0, 1)
+    draw = SeedStreams([3], ENV_STREAM).normal(2)[0].numpy()
+    assert abs(draw[0] - draw[1]) > 0.1
+    np.testing.assert_allclose(got, x + [0.0, 2.0 * draw[0], 1e-3 * draw[1], 0.0, 0.0], rtol=1e-9, atol=1e-10)
+
+
+def test_leaving_the_envelope_later_costs_exactly_the_steps_left():
+    """Nose up, 2 simulator steps per decision, 10 decisions: h_max between the altitude errors
+    after the 3rd and 4th decisions (by hand), so the 4th leaves the envelope with 6 decisions, 12
+    simulator steps, left: its reward is its own minus 12 h_max / 100; the first three are inside."""
+    x, rewards, heights = np.array([20.0, 0.0, 0.01, 0.01, 0.0]), [], []
+    for _ in range(4):
+        x, r = decision_by_hand(x, -1.0, 2)
+        rewards.append(r)
+        heights.append(abs(x[0]))
+    assert heights == sorted(heights) and abs(x[2:]).max() < 0.5 and abs(x[4]) < 1.0
+    h_max = (heights[2] + heights[3]) / 2
+    env = F16Env([0], noise_v=0.0, noise_alpha=0.0, decision_steps=2, max_steps=10, h_max=h_max)
+    td = env.reset()
+    for k in range(4):
+        td["action"] = torch.tensor([0])
+        out, td = env.step_and_maybe_reset(td)
+        assert bool(out["next", "terminated"][0]) == (k == 3)
+        left = 12 if k == 3 else 0
+        assert float(out["next", "reward"][0]) == pytest.approx(rewards[k] - left * h_max / 100, rel=1e-9)
+
+
+def test_airspeed_is_outside_the_envelope():
+    """Airspeed noise of 1 ft/s against an airspeed scale of 0.01 ft/s: V_T leaves [-0.01, 0.01]
+    at once, and the episode runs its 30 steps (the other components stay well inside)."""
+    env = F16Env([0, 1], noise_v=1.0, vt_scale=0.01, max_steps=30)
+    td = env.reset()
+    for _ in range(30):
+        td["action"] = torch.ones(2, dtype=torch.long)
+        out, td = env.step_and_maybe_reset(td)
+        assert not out["next", "terminated"].any()
+        assert (out["next", "state"][:, 1].abs() > 0.01).all()
+    assert out["next", "truncated"].all()
+
 def test_doing_nothing_diverges_and_leaving_the_envelope_costs_the_rest():
     env = F16Env([0, 1, 2], max_steps=4000)
     total, terminated, _ = rollout(env, lambda td: torch.ones(3, dtype=torch.long))
