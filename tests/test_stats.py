@@ -43,3 +43,17 @@ def test_tasks_are_scaled_by_the_lowest_and_highest_run_and_profiles_count_runs_
     np.testing.assert_allclose(curves["a"], [2 / 4, 1 / 4])   # a: 0, 0, 1, 0.5 -> above 0.25: 2; above 0.75: 1
     np.testing.assert_allclose(curves["b"], [3 / 4, 1 / 4])
     assert cis["a"].shape == (2, 2)
+
+
+def test_intervals_are_the_same_in_another_process():
+    """rliable resamples from numpy's global generator, which a new process starts from fresh
+    entropy: the intervals must not depend on it (seeded per call), so a second process computes
+    the same numbers, not only a second call here."""
+    import subprocess
+    import sys
+    x, y = [8.0, 1.0, 7.0, 2.0, 6.0, 3.0, 5.0, 4.0], [3.0, 4.0, 5.0, 1.0, 2.5]
+    code = ("from trl_dgpq.analysis.stats import iqm, probability_of_improvement\n"
+            f"print(repr((iqm({x}, reps=300), probability_of_improvement({x}, {y}, reps=300))))")
+    there = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    here = (iqm(x, reps=300), probability_of_improvement(x, y, reps=300))
+    assert there.stdout.strip() == repr(here)
