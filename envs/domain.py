@@ -93,6 +93,12 @@ class Domain:
         """Whether less of ``measure`` is better (``MEASURE_LOWER_IS_BETTER``; default: more is)."""
         return bool(getattr(self.analysis(), "MEASURE_LOWER_IS_BETTER", False))
 
+    def agent_side_settings(self, env_id: Optional[str] = None) -> Tuple[str, ...]:
+        """Env settings that change what an agent sees or chooses among, not the task
+        (``AGENT_SIDE_SETTINGS``: liquidation's action grid, gym's observation map): runs that
+        differ only in them are runs of one task, and a report puts them in one table."""
+        return tuple(getattr(self.analysis(), "AGENT_SIDE_SETTINGS", ()))
+
     def threshold(self, env_id: Optional[str] = None):
         """The ``trl_dgpq.analysis.Threshold`` a learner must meet here (None: not defined)."""
         return getattr(self.analysis(), "THRESHOLD", None)

@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 
 from trl_dgpq.analysis import at_budget, kernel_fits_per_seed, load_run, steps_to_threshold
-from trl_dgpq.analysis.report import fmt_band, fmt_steps, report
+from trl_dgpq.analysis.report import fmt_band, fmt_steps, group_key, report
 from trl_dgpq.commands.report import main
 from trl_dgpq.envs import domain
 
@@ -61,8 +61,8 @@ def test_mountaincar_flag_and_groups(tmp_path):
     assert "## square (reward_noise=0.0)" in text and "## square (reward_noise=0.1)" in text
     assert "| dgpq noisy | 1 | 200 (1/1 seeds met it) | 200 [200, 200] | 20 [20, 20] | 20 [20, 20] |" in text
     assert "| dqn quiet | 1 | never (0/1 seeds met it) | 600 [600, 600] | 40 [40, 40] | 40 [40, 40] |" in text
-    assert sorted(p.name for p in written) == ["compare-gym-MountainCar-v0.png", "compare-square-reward_noise=0.0.png",
-                                               "compare-square-reward_noise=0.1.png", "compare.md"]
+    assert sorted(p.name for p in written) == ["compare-gym-MountainCar-v0.png", "compare-square-reward_noise-0.0.png",
+                                               "compare-square-reward_noise-0.1.png", "compare.md"]
     assert all(p.stat().st_size > 0 for p in written)
 
 
@@ -84,6 +84,26 @@ def test_profiles_over_tasks_are_drawn(tmp_path):
                      env_cfg={"max_steps": 100 + t}) for i, a in enumerate(("dgpq", "dqn")) for t in (0, 1)]
     written, text = report(runs, ["g0", "g1", "q0", "q1"], tmp_path / "out")
     assert (tmp_path / "out" / "profiles.png") in written and "![profiles](profiles.png)" in text
+
+
+def test_runs_differing_only_on_the_agents_side_share_a_table(tmp_path):
+    """Liquidation on 21 sale levels (DGPQ) and on none (the AC optimum) is one task; another
+    reward is another; file names carry no '='."""
+    runs = [fake_run(tmp_path / "d", "liquidation", {0: [60] * 12}, agent="dgpq", env_cfg={"action_levels": 21}),
+            fake_run(tmp_path / "o", "liquidation", {0: [60] * 12}, agent="ac-optimal", env_cfg={"action_levels": 0}),
+            fake_run(tmp_path / "u", "liquidation", {0: [60] * 12}, agent="ddpg",
+                     env_cfg={"action_levels": 0, "reward": "utility-ratio"})]
+    for run in runs:  # the measure's column
+        df = pd.read_csv(run / "episodes.csv").assign(implementation_shortfall=1.0)
+        df.to_csv(run / "episodes.csv", index=False)
+    written, text = report(runs, ["dgpq", "opt", "ddpg"], tmp_path / "out")
+    sections = {part.splitlines()[0]: part for part in text.split("\n## ")[1:]}
+    assert set(sections) == {"liquidation", "liquidation (reward=utility-ratio)"}
+    one = next(part for name, part in sections.items() if "utility" not in name)
+    assert "| dgpq |" in one and "| opt |" in one and "| ddpg |" not in one and "action_levels" not in text
+    assert not any("=" in p.name for p in written)
+    a, b = (group_key(load_run(r)) for r in runs[:2])
+    assert a == b != group_key(load_run(runs[2]))
 
 
 def test_bad_input_is_one_line(tmp_path, capsys):

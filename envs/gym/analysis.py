@@ -1,6 +1,9 @@
 """What the analysis says about gymnasium envs: curves of the return; thresholds per id."""
 from trl_dgpq.analysis import Threshold
 
+# What the agent sees ("unit" for DGPQ, "raw" for the neural learners) is its side of the
+# task: DGPQ and DQN on one gym id share a table.
+AGENT_SIDE_SETTINGS = ("observations",)
 THRESHOLDS = {
     "CartPole-v1": Threshold("return", ">=", 195, 10, "mean return >= 195 over 10 episodes"),
     "MountainCar-v0": Threshold("terminated", ">=", 1, 1, "an episode reaches the flag"),

@@ -16,6 +16,9 @@ from .env import LiquidationConfig
 MEASURE = ("implementation_shortfall", "implementation shortfall ($)")
 MEASURE_LOWER_IS_BETTER = True  # the at-budget scores (report: IQM, P(improvement), profiles) are negated
 TERMINATED = "no shares left"
+# The sale grid is the agent's side (DGPQ and DQN choose among 21 levels, DDPG and the
+# schedules need none): runs that differ only in it are runs of one task, in one table.
+AGENT_SIDE_SETTINGS = ("action_levels",)
 DEFAULT_LAST = 1000  # episodes at the end that the comparison table uses
 
 

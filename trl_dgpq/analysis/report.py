@@ -1,6 +1,8 @@
 """Compare learners by the environment steps they needed (``scripts/report.py``).
 
-Runs are grouped by env and env settings. For each group, ``compare-<env>.png`` plots
+Runs are grouped by env and the env settings that make the task (not those only the agent's
+side depends on, ``AGENT_SIDE_SETTINGS``: liquidation's sale grid, gym's observation map).
+For each group, ``compare-<env>.png`` (the settings that differ in its name) plots
 the domain's measure against environment steps (each seed's mean over its last
 ``window`` episodes, as it stood at that step; median and IQR over seeds), and
 ``compare.md`` holds one table:
@@ -118,9 +120,16 @@ def kernel_fits_cell(run) -> str:
     return "0" if run.agent == "dgpq" else "–"  # DGPQ with RBF trains no kernel
 
 
+def task_settings(run) -> dict:
+    """The run's env settings that make its task (not those only its agent's side depends on)."""
+    side = run.domain.agent_side_settings(run.env_id)
+    return {k: v for k, v in run.config["env"].items() if k not in side}
+
+
 def group_key(run) -> tuple:
-    """Runs on the same env with the same env settings share a table and a figure."""
-    return run.env, json.dumps(run.config["env"], sort_keys=True)
+    """Runs on the same env with the same task settings share a table and a figure (DGPQ on
+    21 sale levels and the AC optimum, which needs none, are runs of one task)."""
+    return run.env, json.dumps(task_settings(run), sort_keys=True)
 
 
 def default_labels(runs) -> list:
@@ -146,7 +155,7 @@ def report(runs, labels, out: Path, budget=None, window: int = WINDOW) -> tuple:
     task_scores = {}  # {agent: {task: higher-is-better scores at budget}}, for the profiles
     for (env, _), entries in groups.items():
         first = entries[0][1]
-        name = group_name(env, first.config["env"], [json.loads(k[1]) for k in groups if k[0] == env])
+        name = group_name(env, task_settings(first), [json.loads(k[1]) for k in groups if k[0] == env])
         column, ylabel = first.domain.measure(first.env_id)
         threshold = first.domain.threshold(first.env_id)
         lower = first.domain.lower_is_better(first.env_id)
@@ -185,7 +194,7 @@ def report(runs, labels, out: Path, budget=None, window: int = WINDOW) -> tuple:
         ax.set_ylabel(f"{ylabel} (mean of last {window})")
         ax.set_title(f"{name}: median and IQR over seeds", fontsize=10)
         ax.legend(fontsize=8)
-        written.append(save(fig, out / f"compare-{re.sub(r'[^A-Za-z0-9.=_-]+', '-', name).strip('-')}.png"))
+        written.append(save(fig, out / f"compare-{re.sub(r'[^A-Za-z0-9._-]+', '-', name).strip('-')}.png"))
         lines += ["", *improvement_lines(scored, threshold, lower), ""]
     profile = profile_figure(task_scores, out)
     if profile is not None:
