@@ -175,3 +175,46 @@ def test_at_budget_direction_is_the_measures_not_the_thresholds(tmp_path):
         pd.read_csv(run / "episodes.csv").assign(success=True).to_csv(run / "episodes.csv", index=False)
     _, text = report([dgpq, dqn], None, tmp_path / "out", budget=400)
     assert "at budget 1.00 [1.00, 1.00]" in text, text
+
+
+@pytest.fixture
+def scored(monkeypatch):
+    """The report with rliable's bootstraps left out (seconds each, and not what these tests are
+    about): what each comparison is given is recorded instead, as {"improvement": [(x, y), ...],
+    "profiles": [task_scores]}."""
+    from trl_dgpq.analysis import report as module
+    seen = {"improvement": [], "profiles": []}
+
+    def improvement(x, y):
+        seen["improvement"].append((list(x), list(y)))
+        return 0.5, 0.0, 1.0
+    monkeypatch.setattr(module, "iqm", lambda values: (0.0, 0.0, 0.0))
+    monkeypatch.setattr(module, "probability_of_improvement", improvement)
+    monkeypatch.setattr(module, "profile_figure", lambda task_scores, out: seen["profiles"].append(task_scores))
+    return seen
+
+
+def test_profiles_take_an_agents_first_run_of_a_task(tmp_path, scored):
+    """Two DQN runs of one square task, 30 then 50 steps per episode, and a DGPQ run: the profiles
+    get the first DQN run's at-budget scores (steps per episode, fewer better: -30 for each seed),
+    as documented, not the second's (-50)."""
+    runs = [fake_run(tmp_path / "q1", "square", {0: [30] * 12, 1: [30] * 12}),
+            fake_run(tmp_path / "q2", "square", {0: [50] * 12, 1: [50] * 12}),
+            fake_run(tmp_path / "g", "square", {0: [20] * 12, 1: [20] * 12}, agent="dgpq")]
+    report(runs, ["q1", "q2", "g"], tmp_path / "out", budget=300)
+    (task_scores,) = scored["profiles"]
+    assert {a: {t: list(s) for t, s in per.items()} for a, per in task_scores.items()} == {
+        "dqn": {"square": [-30.0, -30.0]}, "dgpq": {"square": [-20.0, -20.0]}}
+
+
+@pytest.mark.parametrize("env, returns", [("f16", (-40.0, -130.0)), ("gym:CartPole-v1", (150.0, 20.0))])
+def test_a_domain_declaring_no_direction_counts_more_as_better(tmp_path, scored, env, returns):
+    """The F-16 and gym declare no direction for their measure, the return: the documented default,
+    more is better, so DGPQ's and DQN's returns are compared as they are (not negated)."""
+    from trl_dgpq.envs import domain, split_name
+    assert not hasattr(domain(env).analysis(), "MEASURE_LOWER_IS_BETTER")
+    assert domain(env).measure(split_name(env)[1])[0] == "return"
+    dgpq, dqn = (fake_run(tmp_path / agent, env, {s: [10] * 12 for s in range(3)}, agent=agent,
+                          returns={s: [r] * 12 for s in range(3)}) for agent, r in zip(("dgpq", "dqn"), returns))
+    report([dgpq, dqn], None, tmp_path / "out", budget=120)
+    assert scored["improvement"][-1] == ([returns[0]] * 3, [returns[1]] * 3)   # at budget: the last comparison
