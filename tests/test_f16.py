@@ -247,3 +247,16 @@ def test_reward_blocks_are_the_median_and_quartiles_of_each_seeds_block_mean():
     assert list(b["median"]) == [-15.0, -6.0]
     assert b["q25"].iloc[0] == pytest.approx(-32.5) and b["q75"].iloc[1] == pytest.approx(-3.0)
     assert analysis.window_reward(df, 2, 3) == pytest.approx((-20 - 30 - 50 + 0 - 3 - 5) / 6)
+
+
+def test_the_report_row_never_shows_a_window_the_run_did_not_cover():
+    """A 100-episode run: no "100-200" (episode 100 alone is not GWH14's window), and "late" is
+    its last 10 episodes (91-100), not the whole run; at 1,000 episodes late is GWH14's 900-1000."""
+    timed = lambda df: df.assign(wall_s=0.2, cpu_s=0.2, us_per_step=1e3)  # noqa: E731 (ms per seed-step)
+    short = timed(episodes({0: [-200.0] * 90 + [-50.0] * 10}))
+    cells = [c.strip() for c in analysis.row("f16-dgpq-lq5", short).strip("|").split("|")]
+    assert cells[3] == "- (not run to 200)" and cells[4] == "-50 (91-100)"
+    long = timed(episodes({0: [-200.0] * 900 + [-40.0] * 100}))
+    cells = [c.strip() for c in analysis.row("f16-dgpq-lq5", long).strip("|").split("|")]
+    assert cells[3] == "-200" and cells[4] == "-40 (901-1000)"
+    assert analysis.late_window(150) == (141, 150)

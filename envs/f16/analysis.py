@@ -69,7 +69,7 @@ def flights(folder: Path) -> dict:
     return out
 
 
-def trace_figure(folder: Path, out: Path, title: str = "") -> Path:
+def trace_figure(folder: Path, out: Path, title: str = "", label: str = "") -> Path:
     """f16_trace.png: altitude error and elevator over one episode, the learner against PD
     and LQR (``flights``)."""
     import matplotlib.pyplot as plt
@@ -87,7 +87,7 @@ def trace_figure(folder: Path, out: Path, title: str = "") -> Path:
     bx.set_ylabel("elevator (lines offset to show overlaps)")
     bx.set_xlabel("time (s)")
     bx.grid(alpha=0.3)
-    ax.set_title(f"one episode after training, same noise for all ({folder.name})", fontsize=9)
+    ax.set_title(f"one episode after training{f' ({label})' if label else ''}, the same noise for all", fontsize=9)
     return save(fig, out / "f16_trace.png", title)
 
 
@@ -136,6 +136,7 @@ def reward_figure(runs, labels, out: Path, block: int = 10, title: str = "") -> 
     ax.set_xscale("log")
     ax.set_xlabel(f"episode (log axis; blocks of {block})")
     ax.set_ylabel("episode reward (median of seeds; band: IQR)")
+    ax.set_title("F-16 altitude hold: episode reward per block of episodes", fontsize=10)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7, loc="lower right", ncol=2)
     return save(fig, out / "f16_reward.png", title)
@@ -145,9 +146,9 @@ def figures(runs, labels, out: Path, block: int = 10, last=None, title: str = ""
     """f16_reward.png, and f16_trace.png for the first learner with a checkpoint."""
     written = [reward_figure(runs, labels, out, block=block, title=title)]
     from trl_dgpq.collectors.evaluate import job_folders
-    learner = next((r for r in runs if r.agent not in SCRIPTED and job_folders(r.path)), None)
+    learner = next(((r, l) for r, l in zip(runs, labels) if r.agent not in SCRIPTED and job_folders(r.path)), None)
     if learner is not None:
-        written.append(trace_figure(learner.path, out, title))
+        written.append(trace_figure(learner[0].path, out, title, label=learner[1]))
     return written
 
 
@@ -167,11 +168,18 @@ REPRODUCE = [
 ]
 
 
+def late_window(E: int) -> tuple:
+    """The episodes the "late" column averages: GWH14's 900-1000 when the run got there, else
+    its last 10 (never the whole run)."""
+    return (901, 1000) if E >= 1000 else (max(1, E - 9), E)
+
+
 def row(name: str, df: pd.DataFrame) -> tuple:
     E = int(df.episode.max())
     stable = episodes_to_stable(df)
-    late = (max(1, E - 99), E) if E < 1000 else (901, 1000)
-    cells = (f"{window_reward(df, 1, 10):.0f}", f"{window_reward(df, 100, 200):.0f}" if E >= 100 else "-",
+    late = late_window(E)
+    cells = (f"{window_reward(df, 1, 10):.0f}",
+             f"{window_reward(df, 100, 200):.0f}" if E >= 200 else "- (not run to 200)",  # GWH14's window, whole
              f"{window_reward(df, *late):.0f} ({late[0]}-{late[1]})",
              f"{stable.notna().sum()} of {len(stable)}" + (f", median {stable.median():.0f}" if stable.notna().any()
                                                            else ""),
@@ -185,7 +193,7 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
     names = list(runs)
     figures([runs[n] for n in names], [n.removeprefix("f16-") for n in names], out / "f16",
             block=10, title=title)
-    rows = ["| agent | seeds x episodes | reward, episodes 1-10 | 100-200 | late | stable flight reached "
+    rows = ["| agent | seeds x episodes | reward, episodes 1-10 | 100-200 | late (episodes) | stable flight reached "
             "(episode) | ms per seed-step |", "|---|---|---|---|---|---|---|"]
     rows += [row(n, runs[n].df) for n in names]
     sentences = []
@@ -196,11 +204,14 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
         lo, hi = (100, 200) if e1 < 500 else (900, 1000)
         ours = window_reward(df, lo, hi)
         stable = episodes_to_stable(df)
+        ran = int(df.episode.max())
+        ours = ours if ran >= hi else float("nan")  # a window the run only began is not GWH14's window
         verdict = ("not measured at this scale" if np.isnan(ours) else
                    f"{'within' if r1 * 1.5 <= ours <= r1 / 1.5 else 'not within'} 1.5x of GWH14's reward")
+        later = (f"{ours:.0f} in {lo}-{hi} ({verdict})" if not np.isnan(ours) else
+                 f"episodes {lo}-{hi} not reached in this run's {ran} ({verdict})")
         sentences.append(f"- GWH14 (L_Q = {L}): about {PAPER[float(L)][0][1]} at first and {r1} by episodes "
-                         f"{lo}-{hi}. Ours: {window_reward(df, 1, 10):.0f} in episodes 1-10 and "
-                         f"{'-' if np.isnan(ours) else f'{ours:.0f}'} in {lo}-{hi} ({verdict}); "
+                         f"{lo}-{hi}. Ours: {window_reward(df, 1, 10):.0f} in episodes 1-10 and {later}; "
                          f"{stable.notna().sum()} of {len(stable)} seeds reached a stable flight (GWH14: stable "
                          f"{'within 100 episodes' if L == 5 else 'by about 1,000 episodes'}).")
     return (f"## Aircraft altitude hold (GWH14's second experiment) -- Figure 3\n\n{label}\n\n"

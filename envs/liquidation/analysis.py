@@ -206,11 +206,11 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
     cost, short = paired_ratios(runs["liq-twap"].df, opt, ("ac_cost", "implementation_shortfall"))
     dump = runs["liq-ddpg-utility-ratio"].df
     sentences = [
-        f"- AC optimum (SPEC 3.2: U* = $704,723): ac-optimal's mean ac_cost is ${opt.ac_cost.mean():,.0f} "
-        f"({opt.ac_cost.mean() / 704_723:.3f} U*).",
-        f"- SPEC: TWAP costs 4.3x the optimum's ac_cost at 0.48x its shortfall. Ours: {cost:.2f}x and {short:.2f}x "
-        f"({agree(cost, 4.3, 1.1)}).",
-        f"- SPEC: the seed report's utility-ratio reward pays most for selling everything at once. DDPG on it "
+        f"- AC optimum (closed form: U* = $704,723): ac-optimal's mean ac_cost over all its {len(opt)} "
+        f"seed-episodes is ${opt.ac_cost.mean():,.0f} ({opt.ac_cost.mean() / 704_723:.3f} U*).",
+        f"- Expected from the model: TWAP costs 4.3x the optimum's ac_cost at 0.48x its shortfall. Ours, paired "
+        f"on the same price paths over all episodes: {cost:.2f}x and {short:.2f}x ({agree(cost, 4.3, 1.1)}).",
+        f"- The seed report's utility-ratio reward pays most for selling everything at once. DDPG on it "
         f"trades {dump[dump.episode > dump.episode.max() // 2].steps.mean():.1f} times per episode (of 60) in its "
         "second half.",
         course_sentence(runs),

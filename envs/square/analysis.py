@@ -55,7 +55,7 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
         f"- GWH14: ~100 steps in episode 1, ~20 (optimum ~17) within 2-3 episodes. Ours (shaped): {first:g} in "
         f"episode 1 ({agree(first, 100, 3)} within 3x) and {later:g} from episode 3 on ({agree(later, 20)}).",
         f"- Seed report: 1,000-5,000 steps in episode 1 (exact GP, Section 5 values). Ours with its settings "
-        f"(report preset): {rfirst:g}, because the 200-step cap truncates it (SPEC 3.1); its L_Q = 9 is the "
+        f"(report preset): {rfirst:g}, because episodes are capped at 200 steps; its L_Q = 9 is the "
         "lever that makes it slow, not the GP.",
         f"- RBF vs manifold kernel (Figure 4; exact GP, shaped): episode 1 {ef:g} vs {kf:g}, episodes 3+ {el:g} vs "
         f"{kl:g}: {'the same' if (ef, el) == (kf, kl) else 'close'} -- sigma_tol2 is reached after one sample, so "
