@@ -1,7 +1,8 @@
 #!/usr/bin/env python
 """Write each command's ``--help`` into docs/commands.md, between its markers
-``<!-- help: NAME -->`` and ``<!-- /help -->``; ``--check`` only says whether the page is
-up to date (tests/test_docs.py runs that check in ``make test``).
+``<!-- help: NAME -->`` and ``<!-- /help -->``, and into trl_dgpq/commands/help.json (what
+``--help`` prints before the heavy imports); ``--check`` only says whether the page is up to
+date (tests/test_docs.py runs that check, tests/test_commands.py the JSON's, in ``make test``).
 
     python scripts/docs_reference.py            # after changing a command's options
     python scripts/docs_reference.py --check    # exit 1 and name the commands out of date
@@ -9,19 +10,13 @@ up to date (tests/test_docs.py runs that check in ``make test``).
 from __future__ import annotations
 
 import argparse
-import contextlib
-import importlib
-import io
-import os
 import re
 import sys
 from pathlib import Path
-from unittest import mock
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGE = ROOT / "docs" / "commands.md"
 COMMANDS = ("train", "evaluate", "plot", "report", "sweep", "reproduce", "tune")
-WIDTH = "100"  # argparse wraps at $COLUMNS: fixed, so the page does not depend on the terminal
 CORES = 2      # sweep's and reproduce's --workers default to the machine's cores: shown as N
 BLOCK = re.compile(r"(<!-- help: (\w+) -->\n)(.*?)(<!-- /help -->)", re.S)
 
@@ -29,21 +24,8 @@ BLOCK = re.compile(r"(<!-- help: (\w+) -->\n)(.*?)(<!-- /help -->)", re.S)
 def help_text(name: str) -> str:
     """``trl-dgpq NAME --help`` as the installed command prints it, at a fixed width."""
     sys.path.insert(0, str(ROOT))
-    import trl_dgpq.commands
-    old_entry, old_columns = trl_dgpq.commands.ENTRY, os.environ.get("COLUMNS")
-    trl_dgpq.commands.ENTRY, os.environ["COLUMNS"] = "trl-dgpq", WIDTH
-    out = io.StringIO()
-    try:
-        with contextlib.redirect_stdout(out), contextlib.suppress(SystemExit), \
-                mock.patch("os.cpu_count", return_value=CORES):
-            importlib.import_module(f"trl_dgpq.commands.{name}").main(["--help"])
-    finally:
-        trl_dgpq.commands.ENTRY = old_entry
-        if old_columns is None:
-            os.environ.pop("COLUMNS", None)
-        else:
-            os.environ["COLUMNS"] = old_columns
-    return out.getvalue().rstrip().replace(f"the cores, {CORES})", "the cores, N)") + "\n"
+    from trl_dgpq.commands.early import capture
+    return capture(name, "trl-dgpq", cores=CORES).rstrip().replace(f"the cores, {CORES})", "the cores, N)") + "\n"
 
 
 def render(page: str) -> str:
@@ -73,6 +55,8 @@ def main(argv=None) -> int:
             return 1
         return 0
     PAGE.write_text(render(page))
+    from trl_dgpq.commands import early  # the same texts, answered before torch is imported
+    early.main()
     return 0
 
 

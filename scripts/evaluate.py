@@ -2,7 +2,7 @@
 """``python scripts/evaluate.py --help``: see ``trl_dgpq/commands/evaluate.py``."""
 import sys
 
-from trl_dgpq.commands.evaluate import main
+from trl_dgpq.commands import run
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run("evaluate"))

@@ -2,7 +2,7 @@
 """``python scripts/plot.py --help``: see ``trl_dgpq/commands/plot.py``."""
 import sys
 
-from trl_dgpq.commands.plot import main
+from trl_dgpq.commands import run
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run("plot"))

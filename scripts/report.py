@@ -2,7 +2,7 @@
 """``python scripts/report.py --help``: see ``trl_dgpq/commands/report.py``."""
 import sys
 
-from trl_dgpq.commands.report import main
+from trl_dgpq.commands import run
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run("report"))

@@ -2,7 +2,7 @@
 """``python scripts/reproduce.py --help``: see ``trl_dgpq/commands/reproduce.py``."""
 import sys
 
-from trl_dgpq.commands.reproduce import main
+from trl_dgpq.commands import run
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run("reproduce"))

@@ -2,7 +2,7 @@
 """``python scripts/train.py --help``: see ``trl_dgpq/commands/train.py``."""
 import sys
 
-from trl_dgpq.commands.train import main
+from trl_dgpq.commands import run
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run("train"))

@@ -2,7 +2,7 @@
 """``python scripts/tune.py --help``: see ``trl_dgpq/commands/tune.py``."""
 import sys
 
-from trl_dgpq.commands.tune import main
+from trl_dgpq.commands import run
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run("tune"))

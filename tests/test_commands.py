@@ -13,9 +13,7 @@ from trl_dgpq.commands import train
 def test_the_entry_point_lists_and_dispatches_commands(capsys):
     assert entry([]) == 0 and "reproduce" in capsys.readouterr().out
     assert entry(["nope"]) == 2 and "unknown command 'nope'" in capsys.readouterr().err
-    with pytest.raises(SystemExit) as stop:
-        entry(["train", "--help"])
-    assert stop.value.code == 0 and "usage: trl-dgpq train" in capsys.readouterr().out
+    assert entry(["train", "--help"]) == 0 and "usage: trl-dgpq train" in capsys.readouterr().out  # help.json's
     assert isinstance(trl_dgpq.__version__, str) and trl_dgpq.__version__[0].isdigit()
 
 
@@ -127,3 +125,34 @@ def test_help_is_grouped_by_owner_and_presets_can_be_listed(capsys):
     assert train.main(["--list-presets"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert any(line.split() == ["f16", "dgpq", "default", "(default),", "flight,", "gamma99,", "lq10"] for line in lines)
+
+
+# ------------------------------------------------------------ --help and typos before the heavy imports
+from trl_dgpq.commands import early  # noqa: E402
+
+
+def test_the_help_snapshot_is_what_the_parsers_print():
+    """help.json must follow every change of an option (regenerate: python scripts/docs_reference.py)."""
+    assert json.loads(early.HELP_FILE.read_text()) == early.snapshot(), \
+        "trl_dgpq/commands/help.json is out of date: run python scripts/docs_reference.py"
+
+
+def test_help_and_a_typo_are_answered_without_importing_torch():
+    """In a fresh process: --help prints the parser's own text, an unknown flag is one line and
+    exit 2, and neither imports torch (seconds under load); a flag the command has goes on."""
+    code = ("import sys; from trl_dgpq.commands.early import answer; "
+            "rc = [answer('train', ['--help']), answer('tune', ['--env', 'square', '--bogus=3']), "
+            "answer('train', ['--epis', '3', '--', '--not-a-flag'])]; "
+            "print(rc, 'torch' in sys.modules, file=sys.stderr)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    lines = proc.stderr.strip().splitlines()
+    assert lines[-1] == "[0, 2, None] False"
+    assert lines[0] == "tune.py: error: unrecognized arguments: --bogus=3 (see tune.py --help)" and len(lines) == 2
+    assert proc.stdout == early.capture("train", None).replace(str(early.CORES), "1")
+
+
+def test_sweeps_help_shows_this_machines_cores(monkeypatch, capsys):
+    monkeypatch.setattr("os.cpu_count", lambda: 48)
+    assert early.answer("sweep", ["-h"]) == 0
+    out = capsys.readouterr().out
+    assert out == early.capture("sweep", None, cores=48) and "48" in out

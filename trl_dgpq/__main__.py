@@ -39,7 +39,7 @@ def main(argv=None) -> int:
         return 2
     import trl_dgpq.commands
     trl_dgpq.commands.ENTRY = "trl-dgpq"
-    return importlib.import_module(f"trl_dgpq.commands.{name}").main(rest)
+    return trl_dgpq.commands.run(name, rest)
 
 
 if __name__ == "__main__":

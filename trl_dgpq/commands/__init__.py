@@ -15,6 +15,19 @@ def command(name: str) -> str:
     return f"{ENTRY} {name}" if ENTRY else f"python scripts/{name}.py"
 
 
+def run(name: str, argv=None) -> int:
+    """Command ``name`` on ``argv`` (default: the process's): ``--help`` and an unknown flag are
+    answered before the command's heavy imports (``early``), the rest by its ``main``."""
+    import importlib
+
+    from .early import answer
+    argv = list(sys.argv[1:] if argv is None else argv)
+    code = answer(name, argv)
+    if code is not None:
+        return code
+    return importlib.import_module(f"trl_dgpq.commands.{name}").main(argv)
+
+
 def guarded(name: str, body) -> int:
     """``body()``'s exit code; a bad request or a file that cannot be read or written -> one
     line and 2, Ctrl-C -> one line and 130 (never a traceback for these)."""
