@@ -70,6 +70,25 @@ class Job:
         return f"{self.experiment} job {self.index} (seeds {_span(self.seeds)})"
 
 
+def planned_seed_steps(job: Job) -> int:
+    """The seed-steps ``job`` may take: its seeds times its env-step budget or its episodes times
+    the episode cap, the smaller. Jobs of one sweep differ by 100x (an F-16 DGPQ job against a
+    scripted one), so the time left is guessed from these, not from a count of jobs."""
+    from trl_dgpq.config import from_dict
+    from trl_dgpq.envs import env_class
+    run = job.config["run"]
+    per_seed = run["episodes"] * from_dict(env_class(run["env"]).Config, job.config["env"]).max_steps
+    if run.get("env_steps"):
+        per_seed = min(per_seed, run["env_steps"])
+    return len(job.seeds) * per_seed
+
+
+def minutes_left(minutes: float, done: List[Job], left: List[Job]) -> float:
+    """The time the jobs ``left`` need at the rate the ``done`` ones took ``minutes``, by their
+    planned seed-steps."""
+    return minutes * sum(map(planned_seed_steps, left)) / max(1, sum(map(planned_seed_steps, done)))
+
+
 def _span(seeds: List[int]) -> str:
     return f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 1 \
         else ",".join(map(str, seeds))
@@ -341,11 +360,12 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
     out = Path(out)
     todo = [j for j in jobs if not runner.RunFolder(j.folder).finished()]
     report = {j.name: dict(status="finished", seeds=j.seeds, note="finished before") for j in jobs if j not in todo}
-    t0, done = time.perf_counter(), [0]
+    t0, done, finished = time.perf_counter(), [0], []
     names = {j.name for j in todo}
 
     def on_done(job: Job, result: dict) -> None:
         done[0] += 1
+        finished.append(job)
         report[job.name] = dict(**result, seeds=job.seeds, experiment=job.experiment, job=job.index,
                                 elapsed_s=round(time.perf_counter() - t0, 2))
         failed = sum(r["status"] != "finished" for name, r in report.items() if name in names)
@@ -353,7 +373,8 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
         # local: the pool refills at once, so min(workers, left) run; Ray schedules what it was given
         running = f" ({min(workers or os.cpu_count() or 1, left)} running)" if backend == "local" and left else ""
         minutes = (time.perf_counter() - t0) / 60
-        eta = f", ~{minutes / done[0] * left:.0f} min left at this rate" if left else ""  # jobs differ: a guide
+        rest = [j for j in todo if j not in finished]
+        eta = f", ~{minutes_left(minutes, finished, rest):.0f} min left at this rate" if left else ""  # a guide
         line = (f"[{done[0]}/{len(todo)} jobs done, {failed} not finished, {left} to go{running}; "
                 f"{minutes:.1f} min{eta}] {job.name}: {result['status']}")
         log(line + (f" -- {result['reason']}" if result.get("reason") else ""))

@@ -288,6 +288,18 @@ def test_each_finished_job_reports_how_many_are_done_failed_and_to_go(tmp_path):
     assert [("min left at this rate" in line) for line in progress] == [True, True, False]
 
 
+def test_the_time_left_is_weighed_by_each_jobs_planned_steps():
+    """Square (200-step cap) 2 seeds x 10 episodes: 4,000 seed-steps; with a budget of 500 env
+    steps: 1,000; liquidation 3 seeds x 4 episodes of 60 trades: 720. One minute for the first
+    two (5,000 seed-steps) leaves 720 / 5,000 of a minute, not half of one per job."""
+    experiments = {"a": resolve_config(env="square", agent="random", seeds=[0, 1], episodes=10),
+                   "b": resolve_config(env="square", agent="random", seeds=[0, 1], episodes=10, env_steps=500),
+                   "c": resolve_config(env="liquidation", agent="twap", seeds=[0, 1, 2], episodes=4)}
+    a, b, c = (sweep.Job(name, 0, cfg["run"]["seeds"], "x", cfg) for name, cfg in experiments.items())
+    assert [sweep.planned_seed_steps(j) for j in (a, b, c)] == [4000, 1000, 720]
+    assert sweep.minutes_left(1.0, [a, b], [c]) == pytest.approx(720 / 5000)
+
+
 @pytest.mark.slow
 def test_a_ray_worker_killed_mid_job_is_retried_from_its_checkpoint(tmp_path):
     """SIGKILL the Ray worker running the only job once it is writing rows: Ray runs the task
