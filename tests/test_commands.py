@@ -7,6 +7,7 @@ import pytest
 
 import trl_dgpq
 from trl_dgpq.__main__ import main as entry
+from trl_dgpq import presets
 from trl_dgpq.commands import train
 
 
@@ -124,7 +125,10 @@ def test_help_is_grouped_by_owner_and_presets_can_be_listed(capsys):
     assert "--hidden" in dqn and "--lipschitz" not in dqn      # a flag is listed under its owner
     assert train.main(["--list-presets"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert any(line.split() == ["f16", "dgpq", "default", "(default),", "flight,", "gamma99,", "lq10"] for line in lines)
+    f16 = next(line.split() for line in lines if line.split()[:2] == ["f16", "dgpq"])
+    assert f16[2:4] == ["default", "(default),"] and {"flight,", "gamma99,"} <= set(f16)  # the domain's own
+    tuned = presets.tuned_entries("f16").get("dgpq", {})                              # and what studies wrote
+    assert {n.rstrip(",") for n in f16[4:]} == {"flight", "gamma99", "lq10", *tuned}
 
 
 # ------------------------------------------------------------ --help and typos before the heavy imports
