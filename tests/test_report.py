@@ -94,7 +94,7 @@ def test_runs_differing_only_on_the_agents_side_share_a_table(tmp_path):
             fake_run(tmp_path / "u", "liquidation", {0: [60] * 12}, agent="ddpg",
                      env_cfg={"action_levels": 0, "reward": "utility-ratio"})]
     for run in runs:  # the measure's column
-        df = pd.read_csv(run / "episodes.csv").assign(implementation_shortfall=1.0)
+        df = pd.read_csv(run / "episodes.csv").assign(ac_cost=1.0)
         df.to_csv(run / "episodes.csv", index=False)
     written, text = report(runs, ["dgpq", "opt", "ddpg"], tmp_path / "out")
     sections = {part.splitlines()[0]: part for part in text.split("\n## ")[1:]}

@@ -34,7 +34,7 @@ def trials_of(out):
 
 def frame(rows):
     """A hand-made episodes frame as ``load_run`` gives it (each seed's cumulative env_steps)."""
-    df = pd.DataFrame(rows, columns=["seed", "episode", "steps", "implementation_shortfall"])
+    df = pd.DataFrame(rows, columns=["seed", "episode", "steps", "ac_cost"])  # liquidation's measure
     df["env_steps"] = df.groupby("seed")["steps"].cumsum()
     return df
 
