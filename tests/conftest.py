@@ -55,3 +55,57 @@ def stop_run_after(monkeypatch):
             return size
         monkeypatch.setattr(runner.RunFolder, "append_rows", append_then_stop)
     return arm
+
+
+class SavedFigures(dict):
+    """{file name: Figure} of the matplotlib figures a test saved (``saved_figures``)."""
+
+    def problems(self, name: str) -> list:
+        """What a reader would trip on in figure ``name``: a title missing or cut at the image's
+        edge, a log axis with fewer than three labels, an episode axis ticked between episodes,
+        a line's point outside its axes' limits (or at or below zero on a log axis)."""
+        import math
+        fig, found = self[name], []
+        fig.canvas.draw()
+        box = fig.bbox
+        titles = [t for t in [fig._suptitle, *(ax.title for ax in fig.axes)] if t is not None and t.get_text()]
+        if not titles:
+            found.append("no title")
+        for t in titles:
+            e = t.get_window_extent()
+            if e.x0 < box.x0 - 1 or e.x1 > box.x1 + 1 or e.y0 < box.y0 - 1 or e.y1 > box.y1 + 1:
+                found.append(f"title {t.get_text()!r} cut at the edge")
+        for ax in fig.axes:
+            for axis, (lo, hi) in (("x", sorted(ax.get_xlim())), ("y", sorted(ax.get_ylim()))):
+                which = getattr(ax, f"{axis}axis")
+                shown = [(loc, lab.get_text()) for loc, lab in zip(which.get_majorticklocs(), which.get_majorticklabels())
+                         if lo <= loc <= hi and lab.get_text()]
+                if which.get_scale() == "log" and len(shown) < 3:
+                    found.append(f"log {axis} axis labelled {[s for _, s in shown]}")
+                if axis == "x" and ax.get_xlabel().startswith("episode") and any(
+                        not float(loc).is_integer() for loc, _ in shown):
+                    found.append(f"episode ticks {[s for _, s in shown]}")
+                for line in ax.get_lines():
+                    data = [v for v in np.asarray(getattr(line, f"get_{axis}data")(), dtype=float) if math.isfinite(v)]
+                    if line.get_transform() != ax.transData or not data:
+                        continue  # axhline and the like: drawn in axes coordinates on one side
+                    if min(data) < lo or max(data) > hi or (which.get_scale() == "log" and min(data) <= 0):
+                        found.append(f"{line.get_label()!r} leaves the {axis} axis [{lo:g}, {hi:g}]: "
+                                     f"{min(data):g}..{max(data):g}")
+        return found
+
+
+@pytest.fixture
+def saved_figures(monkeypatch):
+    """Every matplotlib figure saved during the test, by file name (closing a figure only ends
+    pyplot's hold on it: its titles, ticks and lines stay there to inspect)."""
+    from pathlib import Path
+
+    import matplotlib.figure
+    saved, savefig = SavedFigures(), matplotlib.figure.Figure.savefig
+
+    def record(self, fname, *args, **kwargs):
+        saved[Path(fname).name] = self
+        return savefig(self, fname, *args, **kwargs)
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", record)
+    return saved

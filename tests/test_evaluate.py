@@ -197,15 +197,24 @@ def test_liquidation_holdings_of_the_schedules_are_their_closed_forms(tmp_path):
     assert (tmp_path / "fig" / "holdings.png").stat().st_size > 10_000
 
 
-def test_push_animation_shows_the_learner_and_the_oracle_side_by_side(tmp_path):
+def test_push_animation_shows_the_learner_above_the_oracle(tmp_path):
     from PIL import Image
 
-    from trl_dgpq.envs.push.analysis import CAMERA, animation, camera, pixel
-    view, projection = camera(240, 180)
-    assert pixel(CAMERA["target"], view, projection, 240, 180) == pytest.approx((120.0, 90.0))  # the centre
+    from trl_dgpq.envs.push.analysis import CAMERA, FRAME, animation, camera, pixel
+    from trl_dgpq.envs.push.env import PushConfig
+    (w, h), cfg = FRAME, PushConfig()
+    view, projection = camera(w, h)
+    assert pixel(CAMERA["target"], view, projection, w, h) == pytest.approx((w / 2, h / 2))  # the centre
+    # the 5 cm block spans at least 15 pixels (it was a few at 240 x 180), and the push, block to goal, fits
+    (x0, _), (x1, _), (gx, _) = (pixel((x, y, 0.625), view, projection, w, h) for x, y in (
+        cfg.block_start, (cfg.block_start[0] + 0.05, cfg.block_start[1]), cfg.goal))
+    assert abs(x1 - x0) >= 15 and 0 < min(x0, gx) and max(x0, gx) < w
     out = trained(tmp_path, "--env", "push", "--seeds", "1", "--episodes", "1", "--max-steps", "6")
     gif = Image.open(animation(out, tmp_path))
-    assert gif.size == (480, 180) and 2 <= gif.n_frames <= 7          # at most 6 steps, plus the start
+    assert gif.size == (w, 2 * h) and 2 <= gif.n_frames <= 7          # at most 6 steps, plus the start
     gif.seek(gif.n_frames - 1)
-    left, right = np.asarray(gif.convert("RGB"))[:, :240], np.asarray(gif.convert("RGB"))[:, 240:]
-    assert left.std() > 10 and right.std() > 10                        # both rendered, not blank
+    rgb = np.asarray(gif.convert("RGB")).astype(int)
+    top, bottom = rgb[:h], rgb[h:]
+    assert top.std() > 10 and bottom.std() > 10                        # both rendered, not blank
+    red = (rgb[..., 0] > 150) & (rgb[..., 1] < 60) & (rgb[..., 2] < 60)
+    assert red[:h].sum() > 50 and red[h:].sum() > 50                   # the goal's ring kept its red

@@ -212,3 +212,32 @@ def test_ac_optimal_agent_trades_the_optimal_list(market):
     assert len(sold) >= len(expected) - 2 and sold == pytest.approx(expected[:len(sold)], abs=2)
     if not market:
         assert sold[0] == pytest.approx(217_778, abs=1)
+
+
+def test_cost_figure_keeps_every_block_mean_on_its_axis_and_legends_off_the_curves(tmp_path, saved_figures):
+    """liquidation_cost.png: a block's mean shortfall below zero (TWAP's, when prices rose) fell
+    off the log axis; that panel is linear, the other stays log with at least three dollar
+    labels; the legend sits below the panels, not over the curves; titles inside the image."""
+    import pandas as pd
+
+    from tests.test_report import fake_run
+    from trl_dgpq.analysis import load_run
+    from trl_dgpq.envs.liquidation.analysis import figures
+    runs = []
+    for name, shortfall, cost in (("ac-optimal", [480e3, 470e3, 500e3, 460e3], [700e3, 690e3, 720e3, 710e3]),
+                                  ("twap", [350e3, -230e3, 210e3, 280e3], [3.1e6, 2.6e6, 3.0e6, 3.1e6])):
+        folder = fake_run(tmp_path / name, "liquidation", {0: [60] * 4}, agent=name)
+        df = pd.read_csv(folder / "episodes.csv").assign(implementation_shortfall=shortfall, ac_cost=cost)
+        df.to_csv(folder / "episodes.csv", index=False)
+        runs.append(load_run(folder))
+    figures(runs, ["ac-optimal", "twap"], tmp_path, block=1, title="quick scale (fewer seeds and episodes than "
+                                                                     "the seed report)")
+    fig = saved_figures["liquidation_cost.png"]
+    shortfall, cost = fig.axes[:2]
+    assert shortfall.get_yscale() == "linear" and cost.get_yscale() == "log"
+    for name in ("liquidation_cost.png", "liquidation_time.png"):
+        assert saved_figures.problems(name) == [], name
+        drawn = saved_figures[name]
+        assert all(ax.get_legend() is None for ax in drawn.axes) and drawn.legends
+        legend = drawn.legends[0].get_window_extent()
+        assert not any(legend.overlaps(ax.get_window_extent()) for ax in drawn.axes)

@@ -316,3 +316,17 @@ def test_plot_table_counts_successes_in_the_last_episodes(tmp_path):
     cells = [c.strip() for c in text.splitlines()[2].split("|")]
     assert cells[3:7] == ["50.0%", "11.0", "0.0%", "never (1 never)"]
     assert cells[8] == "100.00"                                # 0.1 s per step
+
+
+def test_push_figure_has_a_title_and_whole_episodes(tmp_path, saved_figures):
+    """push.png: titled (it had none without a --title), episodes ticked at whole numbers (a
+    short run was ticked at 1.5, 2.5)."""
+    from tests.test_report import fake_run
+    from trl_dgpq.analysis import load_run
+    from trl_dgpq.envs.push.analysis import figures
+    folder = fake_run(tmp_path / "p", "push", {0: [50] * 4, 1: [40] * 4}, agent="oracle")
+    df = pd.read_csv(folder / "episodes.csv")
+    df.assign(distance=np.linspace(1.0, 0.1, 8), success=df.index % 3 == 0, fell_off=False).to_csv(
+        folder / "episodes.csv", index=False)
+    figures([load_run(folder)], ["oracle"], tmp_path)
+    assert saved_figures.problems("push.png") == []

@@ -221,3 +221,31 @@ def test_reward_noise_is_gaussian_and_leaves_the_moves_alone():
     assert abs(r.mean().item()) < 0.03 and r.std().item() == pytest.approx(0.3, rel=0.05)
     with pytest.raises(ValueError, match="reward_noise"):
         SquareEnv([0], reward_noise=-0.1)
+
+
+def test_figures_titles_fit_and_a_narrow_log_axis_gets_three_labels(tmp_path, saved_figures):
+    """steps_per_episode.png and time_per_step.png with reproduce's long title: each title inside
+    the image (issue 30: cut at both edges); steps between 17 and 40 on the log axis labelled at
+    least three times (20 and 30 alone before), whole episodes on the x axis of a 4-episode run."""
+    from tests.test_report import fake_run
+    from trl_dgpq.analysis import load_run
+    from trl_dgpq.envs.square.analysis import figures
+    run = fake_run(tmp_path / "sq", "square", {0: [40, 25, 18, 17], 1: [35, 30, 19, 17]}, agent="dqn")
+    figures([load_run(run)], ["dqn p"], tmp_path, title="quick scale (fewer seeds and episodes than the seed report)")
+    for name in ("steps_per_episode.png", "time_per_step.png"):
+        assert saved_figures.problems(name) == [], name
+
+
+def test_an_evaluation_with_one_capped_episode_is_drawn_on_a_log_axis(tmp_path, saved_figures):
+    """eval_returns.png: 39 episodes of 17-20 steps and one of 200 (the cap) squashed the box
+    into the bottom 2 % of a linear axis; on a log axis, labelled, every episode inside it."""
+    from tests.test_report import fake_run
+    from trl_dgpq.analysis import load_run
+    from trl_dgpq.analysis.figures import evaluation_figure
+    run = fake_run(tmp_path / "sq", "square", {0: [20]})
+    steps = [17, 18, 19, 20] * 9 + [17, 18, 19, 200]
+    pd.DataFrame({"seed": [0, 1, 2, 3] * 10, "episode": [e for e in range(1, 11) for _ in range(4)],
+                  "steps": steps}).to_csv(run / "eval.csv", index=False)
+    assert evaluation_figure([load_run(run)], ["dgpq"], tmp_path, "steps", "steps per episode") is not None
+    ax = saved_figures["eval_returns.png"].axes[0]
+    assert ax.get_yscale() == "log" and saved_figures.problems("eval_returns.png") == []

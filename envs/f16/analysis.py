@@ -111,7 +111,7 @@ def reward_figure(runs, labels, out: Path, block: int = 10, title: str = "") -> 
     block's mean), the scripted agents' mean as lines, and GWH14's Figure 3 as marks."""
     import matplotlib.pyplot as plt
 
-    from trl_dgpq.analysis.figures import save
+    from trl_dgpq.analysis.figures import log_axis, save
     fig, ax = plt.subplots(figsize=(7.0, 4.4))
     scripted, marked = [], set()
     for run, label in zip(runs, labels):
@@ -133,7 +133,7 @@ def reward_figure(runs, labels, out: Path, block: int = 10, title: str = "") -> 
             ax.plot([e0], [r0], "x", color=line.get_color(), ms=8)
             ax.plot([e1 - 50, e1 + 50], [r1, r1], lw=3, color=line.get_color(), alpha=0.6)
     ax.plot([], [], "kx", label="GWH14 Fig. 3: start (x) and episodes 100-200 / 900-1000 (bar)")
-    ax.set_xscale("log")
+    log_axis(ax, integer=True, axis="x")
     ax.set_xlabel(f"episode (log axis; blocks of {block})")
     ax.set_ylabel("episode reward (median of seeds; band: IQR)")
     ax.set_title("F-16 altitude hold: episode reward per block of episodes", fontsize=10)

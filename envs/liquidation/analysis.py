@@ -39,48 +39,75 @@ def panel_title(gamma, panels: int, schedules: bool) -> str:
     return f"learners with gamma = {gamma:g}" + (" (schedules in each panel)" if panels > 1 and schedules else "")
 
 
+def cost_axis(ax, values) -> None:
+    """A log axis in dollars while every plotted mean is positive; linear where one is not (a
+    block's mean shortfall is below zero when prices rose: TWAP's, over short blocks), which a
+    log axis would drop off its bottom."""
+    from trl_dgpq.analysis.figures import dollars, log_axis
+    if min(values) > 0:
+        log_axis(ax, dollars)
+    else:
+        import matplotlib.ticker
+        ax.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(dollars))
+        ax.axhline(0, color="0.5", lw=0.6)
+
+
 def figures(runs, labels, out: Path, block: int = 100, last=None, title: str = "", **_) -> list:
     """liquidation_cost.png (mean shortfall and ac_cost per block of episodes, a panel per
     discount, the optimum's E* and U* as lines), liquidation_time.png (wall time per
-    episode) and comparison.md (``comparison_table``)."""
+    episode) and comparison.md (``comparison_table``). One legend per figure, below its
+    panels: a legend inside a panel covered its curves."""
     import matplotlib.pyplot as plt
 
-    from trl_dgpq.analysis.figures import save
+    from trl_dgpq.analysis.figures import episode_axis, log_axis, save
     model = ACModel.from_config(from_dict(LiquidationConfig, runs[0].config["env"]))
     gammas = sorted({r.gamma for r in runs if r.gamma is not None}) or [None]
     schedules = any(r.gamma is None for r in runs)
-    panels = [("implementation_shortfall", "mean implementation shortfall ($)", model.expected_shortfall(), "E*"),
-              ("ac_cost", "mean ac_cost = shortfall + risk term ($)", model.utility(), "U*")]
-    fig, axes = plt.subplots(2, len(gammas), figsize=(5.2 * len(gammas), 7.0), squeeze=False, sharex=True)
-    tfig, taxes = plt.subplots(1, len(gammas), figsize=(5.2 * len(gammas), 3.6), squeeze=False)
+    panels = [("implementation_shortfall", "mean implementation shortfall", model.expected_shortfall(), "E*"),
+              ("ac_cost", "mean ac_cost = shortfall + risk term", model.utility(), "U*")]
+    fig, axes = plt.subplots(2, len(gammas), figsize=(5.2 * len(gammas), 7.4), squeeze=False, sharex=True,
+                             layout="constrained")
+    tfig, taxes = plt.subplots(1, len(gammas), figsize=(5.2 * len(gammas), 4.0), squeeze=False,
+                               layout="constrained")
+    handles = {}
     for j, gamma in enumerate(gammas):
-        for run, label in zip(runs, labels):
+        plotted = [[ref] for _, _, ref, _ in panels]
+        for k, (run, label) in enumerate(zip(runs, labels)):
             if run.gamma not in (None, gamma):
                 continue
             df = run.df
             b = min(block, int(df["episode"].max()))  # a run shorter than a block still draws a point
             blk = (df["episode"] - 1) // b
             x = (blk.groupby(blk).first() + 1) * b
-            style = dict(lw=1.2, marker="o" if blk.nunique() < 3 else None, ms=3)
+            style = dict(lw=1.2, marker="o" if blk.nunique() < 3 else None, ms=3, color=f"C{k}")
             for row, (col, *_) in enumerate(panels):
-                axes[row, j].plot(x, df[col].groupby(blk).mean(), label=label, **style)
+                y = df[col].groupby(blk).mean()
+                handles[label], = axes[row, j].plot(x, y, label=label, **style)
+                plotted[row] += list(y)
             taxes[0, j].plot(x, df["wall_s"].groupby(blk).mean() * 1e3, label=label, **style)
         for row, (col, ylabel, ref, name) in enumerate(panels):
             ax = axes[row, j]
-            ax.axhline(ref, color="k", ls="--", lw=1, label=f"AC optimum {name} = ${ref:,.0f}")
-            ax.set_yscale("log")
-            ax.set_ylabel(ylabel)
+            optimum = ax.axhline(ref, color="k", ls="--", lw=1)
+            cost_axis(ax, plotted[row])
+            ax.set_ylabel(ylabel + " ($)")
             ax.grid(alpha=0.3, which="both")
             ax.set_title(panel_title(gamma, len(gammas), schedules), fontsize=9)
-            ax.legend(fontsize=7)
         axes[1, j].set_xlabel(f"episode (mean of each block of up to {block})")
+        episode_axis(axes[1, j])
         tax = taxes[0, j]
         tax.set_title(panel_title(gamma, len(gammas), schedules), fontsize=9)
         tax.set_xlabel("episode")
+        episode_axis(tax)
         tax.set_ylabel("wall ms per episode, per seed")
-        tax.set_yscale("log")
+        log_axis(tax)
         tax.grid(alpha=0.3, which="both")
-        tax.legend(fontsize=7)
+    handles[f"AC optimum: E* = \\${model.expected_shortfall():,.0f} (top), U* = \\${model.utility():,.0f} (bottom)"] = \
+        optimum
+    ncol = max(1, min(len(handles), 2 * len(gammas)))
+    fig.legend(handles.values(), handles.keys(), loc="outside lower center", ncol=ncol, fontsize=8)
+    tfig.legend([h for lab, h in handles.items() if h is not optimum], [lab for lab, h in handles.items()
+                                                                        if h is not optimum],
+                loc="outside lower center", ncol=ncol, fontsize=8)
     written = [save(fig, out / "liquidation_cost.png", title), save(tfig, out / "liquidation_time.png", title)]
     path = out / "comparison.md"
     path.write_text(comparison_table(runs, labels, last or DEFAULT_LAST))

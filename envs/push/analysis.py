@@ -21,7 +21,7 @@ def figures(runs, labels, out: Path, last=None, title: str = "", **_) -> list:
     failure than a 10-step success -- above the success rate per episode; push.md: ``table``."""
     import matplotlib.pyplot as plt
 
-    from trl_dgpq.analysis.figures import band_plot, save
+    from trl_dgpq.analysis.figures import band_plot, episode_axis, save
     fig, (ax, sax) = plt.subplots(2, 1, figsize=(6.4, 6.4), sharex=True, height_ratios=(3, 2))
     for run, label in zip(runs, labels):
         df = run.df
@@ -35,9 +35,9 @@ def figures(runs, labels, out: Path, last=None, title: str = "", **_) -> list:
     sax.set_ylim(-0.03, 1.03)
     for a in (ax, sax):
         a.grid(alpha=0.3)
-    if title:
-        ax.set_title(title, fontsize=9)
-    written = save(fig, out / "push.png")
+    episode_axis(sax)
+    ax.set_title("block pushing: the block's final distance to the goal, and success, per episode", fontsize=9)
+    written = save(fig, out / "push.png", title)
     (out / "push.md").write_text(table(runs, labels, last or DEFAULT_LAST))
     from trl_dgpq.collectors.evaluate import job_folders
     learner = next((r for r in runs if r.config and r.agent != "oracle" and job_folders(r.path)), None)
@@ -91,7 +91,11 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
 
 
 # ------------------------------------------------------------ an evaluation episode, animated
-CAMERA = dict(distance=1.5, yaw=90.0, pitch=-50.0, target=(0.0, 0.0, 0.62))  # the table from its near end
+# The table from its side, the push running left to right across the frame (block start at x = -0.45 to the
+# goal at 0.55 span ~350 of 480 pixels; the 5 cm block ~18): from its near end, at 240 x 180, the block was
+# a few pixels (issue 30).
+CAMERA = dict(distance=0.6, yaw=0.0, pitch=-45.0, target=(0.0, 0.0, 0.62))
+FRAME = (480, 240)  # one panel, width x height; the GIF stacks the learner's above the oracle's
 
 
 def camera(width: int, height: int):
@@ -121,7 +125,7 @@ def frame(env, row: int, width: int, height: int) -> np.ndarray:
     return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[..., :3]
 
 
-def episode_frames(env, policy, row: int = 0, width: int = 240, height: int = 180) -> list:
+def episode_frames(env, policy, row: int = 0, width: int = FRAME[0], height: int = FRAME[1]) -> list:
     """Frames of seed row ``row``'s next episode under ``policy`` (td -> actions)."""
     from trl_dgpq.collectors.evaluate import episode_steps
     td = env.reset()
@@ -130,11 +134,11 @@ def episode_frames(env, policy, row: int = 0, width: int = 240, height: int = 18
     return frames
 
 
-def animation(folder: Path, out: Path, width: int = 240, height: int = 180) -> Path:
+def animation(folder: Path, out: Path, width: int = FRAME[0], height: int = FRAME[1]) -> Path:
     """push.gif: the first seed's first evaluation episode of the learner in ``folder`` (its
-    last checkpoint, exploration off) beside the scripted oracle's on the same episode; the
+    last checkpoint, exploration off) above the scripted oracle's on the same episode; the
     goal marked in red."""
-    from PIL import Image, ImageDraw
+    from PIL import Image, ImageDraw, ImageFont
 
     from trl_dgpq.agents import agent_class
     from trl_dgpq.collectors.evaluate import Frozen, jobs, restore
@@ -146,22 +150,26 @@ def animation(folder: Path, out: Path, width: int = 240, height: int = 180) -> P
         env.for_evaluation()  # re-keyed: both play the same first evaluation episode
         clips.append((name, episode_frames(env, policy, 0, width, height)))
     view, projection = camera(width, height)
-    gx, gy = pixel((*env.cfg.goal, 0.625), view, projection, width, height)
+    (gx, gy), (ex, _), (_, ny) = (pixel((x, y, 0.625), view, projection, width, height) for x, y in (
+        env.cfg.goal, (env.cfg.goal[0] + env.cfg.goal_radius, env.cfg.goal[1]),
+        (env.cfg.goal[0], env.cfg.goal[1] + env.cfg.goal_radius)))
+    rx, ry = abs(ex - gx), abs(ny - gy)  # the goal's radius, in perspective
     n = max(len(f) for _, f in clips)
+    font = ImageFont.load_default(size=max(12, height // 15))
     images = []
     for k in range(n):
         panels = []
         for name, frames in clips:
             img = Image.fromarray(frames[min(k, len(frames) - 1)])
             draw = ImageDraw.Draw(img)
-            draw.ellipse((gx - 5, gy - 5, gx + 5, gy + 5), outline=(220, 0, 0), width=2)
+            draw.ellipse((gx - rx, gy - ry, gx + rx, gy + ry), outline=(220, 0, 0), width=2)
             done = " (done)" if k >= len(frames) - 1 else ""
-            draw.text((4, 4), f"{name}: step {min(k, len(frames) - 1)}{done}", fill=(0, 0, 0))
+            draw.text((6, 4), f"{name}: step {min(k, len(frames) - 1)}{done}", fill=(0, 0, 0), font=font)
             panels.append(img)
-        both = Image.new("RGB", (width * len(panels), height), "white")
+        both = Image.new("RGB", (width, height * len(panels)), "white")
         for i, img in enumerate(panels):
-            both.paste(img, (i * width, 0))
-        images.append(both)
+            both.paste(img, (0, i * height))
+        images.append(both.quantize(256, method=Image.Quantize.FASTOCTREE))  # a few red and black pixels kept
     path = out / "push.gif"
     images[0].save(path, save_all=True, append_images=images[1:], duration=120, loop=0)
     return path

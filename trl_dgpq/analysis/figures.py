@@ -1,6 +1,7 @@
 """Figures any run gets, and the drawing helpers the domains' figures share."""
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import matplotlib
@@ -18,21 +19,95 @@ FIGURES = {
 }
 
 
+def fit_titles(fig) -> None:
+    """Wrap the figure's title and each axes' title, at spaces, until each is no wider than
+    the figure (its title) or its axes (a panel's): a long one was cut at the image's edges."""
+    renderer = fig.canvas.get_renderer()
+    texts = [(fig._suptitle, fig.bbox.width - 8)] if fig._suptitle is not None else []
+    texts += [(ax.title, ax.bbox.width) for ax in fig.axes if ax.get_title()]
+    for text, width in texts:
+        lines = text.get_text().split("\n")
+        n = max(map(len, lines))
+        while n > 12 and text.get_window_extent(renderer).width > width:
+            n = int(n * 0.9)
+            text.set_text("\n".join(textwrap.fill(line, n, break_long_words=False) for line in lines))
+
+
 def save(fig, path: Path, title: str = "") -> Path:
     if title:
         fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
+    for _ in range(2):  # wrapping changes the titles' height, the layout the axes' width
+        fit_titles(fig)
+        if fig.get_layout_engine() is None:
+            fig.tight_layout()
+        else:
+            fig.canvas.draw()
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
 
 
+# Candidate ticks of a log axis, as mantissas of each decade: the sparsest set that puts at least
+# three labels on the axis is used (a fixed 1-2-5 set labelled a narrow axis, 17-40 steps or
+# $200k-$600k, once or twice).
+MANTISSAS = ((1, 2, 5), (1, 2, 3, 5), (1, 1.5, 2, 3, 4, 5, 6, 8), (1, 1.2, 1.5, 2, 2.5, 3, 4, 5, 6, 7, 8, 9),
+             tuple(1 + k / 20 for k in range(180)))
+
+
+class LogTicks(matplotlib.ticker.Locator):
+    """Major ticks of a log axis: at least ``least`` of them inside the view where the view
+    allows (whole numbers only, with ``integer``)."""
+
+    def __init__(self, least: int = 3, integer: bool = False):
+        self.least, self.integer = least, integer
+
+    def __call__(self):
+        return self.tick_values(*self.axis.get_view_interval())
+
+    def tick_values(self, vmin, vmax):
+        import math
+        lo, hi = sorted((vmin, vmax))
+        if not hi > 0:
+            return []
+        lo = max(lo, hi * 1e-12)
+        ticks = []
+        for mantissas in MANTISSAS:
+            ticks = [m * 10.0 ** e for e in range(math.floor(math.log10(lo)), math.ceil(math.log10(hi)) + 1)
+                     for m in mantissas]
+            ticks = [t for t in ticks if lo <= t <= hi and (not self.integer or float(t).is_integer())]
+            if len(ticks) >= self.least:
+                break
+        return ticks
+
+
+def plain(value, _=None) -> str:
+    return f"{value:g}"
+
+
+def dollars(value, _=None) -> str:
+    """$350k, $1.2M: a cost axis's labels."""
+    for scale, unit in ((1e9, "B"), (1e6, "M"), (1e3, "k")):
+        if abs(value) >= scale:
+            return f"${value / scale:.3g}{unit}".replace("$-", "-$")
+    return f"${value:.3g}".replace("$-", "-$")
+
+
+def log_axis(ax, formatter=plain, integer: bool = False, axis: str = "y") -> None:
+    """A log axis with at least three labelled ticks (``LogTicks``), labelled by ``formatter``."""
+    which = getattr(ax, f"{axis}axis")
+    getattr(ax, f"set_{axis}scale")("log")
+    which.set_major_locator(LogTicks(integer=integer))
+    which.set_major_formatter(matplotlib.ticker.FuncFormatter(formatter))
+    which.set_minor_formatter(matplotlib.ticker.NullFormatter())
+
+
 def log_steps_axis(ax) -> None:
-    ax.set_yscale("log")
-    ax.yaxis.set_major_locator(matplotlib.ticker.FixedLocator([1, 2, 5, 10, 15, 20, 30, 50, 100, 200, 500, 1000, 2000,
-                                                               5000, 10000]))
-    ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
-    ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    log_axis(ax, integer=True)
+
+
+def episode_axis(ax) -> None:
+    """Whole episodes on the x axis: a short run was ticked at 2.5, 7.5."""
+    ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True, steps=[1, 2, 5, 10]))
 
 
 def band_plot(ax, df, values, label: str):
@@ -51,6 +126,7 @@ def episode_figures(runs, labels, out: Path, logy_steps: bool = True, title: str
         for run, label in zip(runs, labels):
             band_plot(ax, run.df, value(run.df), f"{label} (median, {run.df.seed.nunique()} seeds)")
         ax.set_xlabel("episode")
+        episode_axis(ax)
         log = fname.startswith("steps") and logy_steps
         ax.set_ylabel(ylabel + (" (log scale)" if log else ""))
         if log:
@@ -71,7 +147,13 @@ def evaluation_figure(runs, labels, out: Path, column: str, ylabel: str):
     if not found:
         return None
     fig, ax = plt.subplots(figsize=(max(4.0, 1.2 + 1.3 * len(found)), 4.0))
-    ax.boxplot([df[column] for _, df in found], showmeans=True)
+    values = [df[column] for _, df in found]
+    ax.boxplot(values, showmeans=True)
+    lo, hi = min(v.min() for v in values), max(v.max() for v in values)
+    if lo > 0 and hi >= 5 * min(v.median() for v in values):
+        # one capped episode (200 steps beside a box at 17-20) squashed the boxes on a linear axis
+        log_axis(ax, integer=column == "steps")
+        ylabel += " (log scale)"
     ax.set_xticks(range(1, len(found) + 1), [f"{label}\n({df.seed.nunique()} seeds x {df.episode.max()})"
                                              for label, df in found], fontsize=7)
     ax.set_ylabel(ylabel)

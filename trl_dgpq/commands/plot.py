@@ -25,7 +25,7 @@ figures of its own get those instead of the two above (``figures`` in
     push                    push.png (the block's final distance to the goal and the success rate
                             per episode, Fig. 5), push.md (success, steps, fall-offs over the last
                             --last episodes), push.gif (the first learner's first evaluation episode
-                            beside the oracle's, rendered headless by pybullet's TinyRenderer)
+                            above the oracle's, rendered headless by pybullet's TinyRenderer)
     f16                     f16_reward.png (episode reward per block of --block episodes, median and
                             IQR across seeds, against GWH14's Fig. 3 and the scripted controllers),
                             f16_trace.png (one episode's altitude and elevator: the first learner
