@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-all docs bench reproduce compare clean
+.PHONY: run test test-all docs bench reproduce compare clean mutate
 
 $(STAMP): pyproject.toml setup.py
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -31,6 +31,15 @@ test-all: $(STAMP)
 docs: $(STAMP)
 	$(BIN)/mkdocs build --strict
 
+# Mutation testing (mutmut; slow, so never in `make test` or CI), niced, with the tests that name
+# the modules unless TESTS is given; K is a pytest -k expression, AGAIN=1 retests the last survivors:
+#   make mutate MODULES="envs/f16 collectors/evaluate.py" [TESTS="tests/test_f16.py"] [K="not slow"]
+# Per-module score (killed / total) and the survivors; see docs/mutation.md and scripts/mutate.py.
+mutate: $(STAMP)
+	@test -n "$(MODULES)" || { echo 'make mutate MODULES="envs/f16 collectors/evaluate.py" [TESTS=...] [K=...]'; exit 2; }
+	@$(BIN)/python -c "import mutmut" 2>/dev/null || $(BIN)/pip install -q -e ".[mutate]"
+	nice -n 15 $(BIN)/python scripts/mutate.py $(MODULES) $(if $(TESTS),--tests $(TESTS)) $(if $(K),-k "$(K)") $(if $(AGAIN),--again)
+
 reproduce: $(STAMP)
 	$(BIN)/python scripts/reproduce.py
 
@@ -43,5 +52,6 @@ bench: $(STAMP)
 	$(BIN)/python scripts/bench.py gp
 	$(BIN)/python scripts/bench.py dgpq
 
+# The venv and build output; never runs/ (hours of experiments): remove it yourself.
 clean:
-	rm -rf $(VENV) runs bench-*.json crash-check.json
+	rm -rf $(VENV) bench-*.json crash-check.json site mutants

@@ -89,6 +89,10 @@ class Domain:
         """(CSV column, label) of what curves of this domain show (default: the return)."""
         return getattr(self.analysis(), "MEASURE", ("return", "return per episode"))
 
+    def format_measure(self, value: float, env_id: Optional[str] = None) -> str:
+        """``value`` of ``measure`` as the domain writes it (``MEASURE_FORMAT``; default 4 digits)."""
+        return getattr(self.analysis(), "MEASURE_FORMAT", "{:.4g}").format(value)
+
     def lower_is_better(self, env_id: Optional[str] = None) -> bool:
         """Whether less of ``measure`` is better (``MEASURE_LOWER_IS_BETTER``; default: more is)."""
         return bool(getattr(self.analysis(), "MEASURE_LOWER_IS_BETTER", False))

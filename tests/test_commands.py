@@ -160,3 +160,54 @@ def test_sweeps_help_shows_this_machines_cores(monkeypatch, capsys):
     assert early.answer("sweep", ["-h"]) == 0
     out = capsys.readouterr().out
     assert out == early.capture("sweep", None, cores=48) and "48" in out
+
+
+# ------------------------------------------------------------ small things a new user met (issue 30)
+def test_plot_refuses_in_one_line_naming_the_command_a_user_types(tmp_path, monkeypatch, capsys):
+    from trl_dgpq.commands import plot
+    monkeypatch.chdir(tmp_path)
+    assert plot.main([]) == 2                               # no run folder, none under runs/
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "usage:" not in err and "none found under runs/" in err
+    assert plot.main([str(tmp_path / "nope")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "usage:" not in err and "train.py --out" in err  # as run here: scripts/
+    from tests.test_report import fake_run
+    run = fake_run(tmp_path / "run", "square", {0: [30, 20]}, agent="dgpq")
+    assert plot.main([str(run), "--labels", "a", "b"]) == 2
+    assert "1 runs, 2 labels" in capsys.readouterr().err
+    locked = tmp_path / "a-file"
+    locked.write_text("")
+    assert plot.main([str(run), "--out", str(locked / "figs")]) == 2
+    err = capsys.readouterr().err
+    assert "cannot create the folder for the figures" in err and "Errno" not in err
+
+
+def test_a_flag_that_means_something_else_per_config_shows_each_ones_help(capsys):
+    with pytest.raises(SystemExit):
+        train.main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    reward = text.split("--reward REWARD Square: shaped")[1].split(" --")[0]   # the square's own help
+    assert "; Liquidation: shortfall: minus each trade" in reward             # and liquidation's
+
+
+def test_a_reward_domain_summary_gives_the_reward_and_evaluate_the_domains_format(tmp_path, capsys):
+    import pandas as pd
+    from trl_dgpq.envs import domain
+    out = tmp_path / "f16"
+    assert train.main(["--env", "f16", "--seeds", "2", "--episodes", "4", "--out", str(out), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    df = pd.read_csv(out / "episodes.csv")
+    first = df[df.episode <= 2]["return"].mean()
+    last = df[df.episode >= 3]["return"].mean()
+    assert f"episode reward, mean over seeds: first 2 episodes {first:.4g}, last 2 {last:.4g}" in text
+    assert domain("liquidation").format_measure(603_212.4) == "$603,212"
+    assert domain("f16").format_measure(-134.44) == "-134.4"
+    assert train.measure_line(df.assign(steps=1), domain("square"), None) == []   # steps: said already
+
+
+def test_make_clean_keeps_the_runs():
+    from pathlib import Path
+    make = (Path(__file__).resolve().parent.parent / "Makefile").read_text()
+    clean = make.split("\nclean:", 1)[1].split("\n\n")[0]
+    assert "rm -rf" in clean and "runs" not in clean                # hours of runs are not build output

@@ -17,6 +17,7 @@ from .env import LiquidationConfig
 # minimises (U*) and the shortfall reward's return; by the shortfall alone TWAP, at 4.3x U*,
 # would look best, and a study tuning on it would be pulled toward selling slowly.
 MEASURE = ("ac_cost", "ac_cost: shortfall + risk term ($)")
+MEASURE_FORMAT = "${:,.0f}"  # evaluate's line: $603,200, not 6.032e+05
 MEASURE_LOWER_IS_BETTER = True  # the at-budget scores (report: IQM, P(improvement), profiles) are negated
 TERMINATED = "no shares left"
 # The sale grid is the agent's side (DGPQ and DQN choose among 21 levels, DDPG and the

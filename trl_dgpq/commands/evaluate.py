@@ -40,10 +40,11 @@ def run(args) -> int:
         df = evaluate(folder, args.episodes, progress=not args.no_progress)
         trained = load_run(folder)
         column, label = trained.domain.measure(trained.env_id)
+        fmt = lambda value: trained.domain.format_measure(value, trained.env_id)  # noqa: E731
         # each seed's own last episodes: seeds a budget stopped end at different episodes
         train = trained.df.groupby("seed").tail(args.episodes)[column].mean()
         print(f"{folder}: {label}, mean over {df.seed.nunique()} seeds x {args.episodes} evaluation episodes: "
-              f"{df[column].mean():.4g} (the last {args.episodes} training episodes: {train:.4g}); "
+              f"{fmt(df[column].mean())} (the last {args.episodes} training episodes: {fmt(train)}); "
               f"wrote {folder / EVAL}")
     return 0
 

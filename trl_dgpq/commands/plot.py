@@ -38,7 +38,7 @@ import sys
 from pathlib import Path
 
 from trl_dgpq.analysis import load_run
-from trl_dgpq.commands import guarded, prog
+from trl_dgpq.commands import command, guarded, prog
 
 
 def default_labels(runs) -> list:
@@ -60,23 +60,32 @@ def main(argv=None) -> int:
     p.add_argument("--last", type=int, default=None,
                    help="episodes at the end that a domain's table uses (liquidation: 1000, push: 20)")
     args = p.parse_args(argv)
+
+    def refuse(message: str) -> int:
+        """One line, as every command's errors (argparse's p.error printed the whole usage first)."""
+        print(f"{prog('plot')}: error: {message}", file=sys.stderr)
+        return 2
     if not args.runs:
         found = sorted(Path("runs").glob("*/episodes.csv"), key=lambda f: f.stat().st_mtime)
         if not found:
-            p.error("no run folder given and none found under runs/")
+            return refuse("no run folder given and none found under runs/")
         args.runs = [str(found[-1].parent)]
     for r in args.runs:
         if not (Path(r) / "episodes.csv").is_file():
-            p.error(f"{r}/episodes.csv not found (run scripts/train.py --out {r} first)")
+            return refuse(f"{r}/episodes.csv not found (run {command('train')} --out {r} first)")
     if args.labels and len(args.labels) != len(args.runs):
-        p.error("give one label per run")
+        return refuse(f"give one label per run ({len(args.runs)} runs, {len(args.labels)} labels)")
     return guarded("plot", lambda: draw([load_run(r, need_config=False) for r in args.runs], args.labels,
                                         Path(args.out or args.runs[0]), args))
 
 
 def draw(runs, labels, out: Path, args) -> int:
     labels = labels or default_labels(runs)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:  # guarded would print "[Errno 2] No such file or directory: '/proc/x'"
+        raise ValueError(f"cannot create the folder for the figures, {out}: {err.strerror or err} "
+                         "(give --out a folder you can write)") from None
     domains = {run.domain and run.domain.name for run in runs}  # None: a run without its config.json
     own = getattr(runs[0].domain.analysis(), "figures", None) if len(domains) == 1 and None not in domains else None
     if own is not None:

@@ -114,10 +114,13 @@ def add_setting_flags(p: argparse.ArgumentParser, settings: dict) -> None:
             text = f"{leaf.help} [{describe_default(leaf)}]"
             if leaf.choices:
                 text += f" {{{', '.join(leaf.choices)}}}"
-        else:  # the same name in several configs: each one's default (and choices)
+        elif len({lf.help for _, lf in owners}) == 1:  # the same name in several configs: each one's default
             text = leaf.help + " [" + "; ".join(
                 f"{name.removesuffix('Config')}: {describe_default(lf)}"
                 + (f" {{{', '.join(lf.choices)}}}" if lf.choices else "") for name, lf in owners) + "]"
+        else:  # ... meaning something else in each (--reward): each one's own help, not the first's alone
+            text = "; ".join(f"{name.removesuffix('Config')}: {lf.help} [{describe_default(lf)}]"
+                             for name, lf in owners)
         if leaf.type is bool:
             g.add_argument(flag, dest=key, action=argparse.BooleanOptionalAction, default=None, help=text)
         else:
@@ -229,8 +232,22 @@ def summarise(df, config) -> None:
     means = d.terminated_means(split_name(config["run"]["env"])[1])
     print(f"{line}; terminated ({means}) in {df.terminated.mean():.0%} of episodes; "
           f"{ms_per_seed_step(df) * 1e3:.0f} us per seed-step")
-    for extra in getattr(d.analysis(), "summary", lambda df: [])(df):
+    own = getattr(d.analysis(), "summary", None)
+    for extra in own(df) if own else measure_line(df, d, split_name(config["run"]["env"])[1]):
         print(extra)
+
+
+def measure_line(df, d, env_id) -> list:
+    """The domain's measure early and late (the F-16's reward: its steps are always the cap),
+    for domains without a ``summary`` of their own; none where the measure is the steps."""
+    column, label = d.measure(env_id)
+    if column == "steps":
+        return []
+    n = min(10, max(1, df.episode.max() // 2))
+    per_seed = df.sort_values("episode").groupby("seed")[column]
+    first, last = per_seed.head(n).mean(), per_seed.tail(n).mean()
+    return [f"{label}, mean over seeds: first {n} episodes {d.format_measure(first, env_id)}, "
+            f"last {n} {d.format_measure(last, env_id)}"]
 
 
 if __name__ == "__main__":
