@@ -6,8 +6,8 @@
                         rewritten sorted by (seed, episode) when the run finishes
     OUT/checkpoint.pt   env, agent and collector state + how much of episodes.csv
                         it covers; every ``checkpoint_every`` episodes per seed, on
-                        SIGINT/SIGTERM and at the end (the one before it is kept as
-                        checkpoint.prev.pt)
+                        SIGINT/SIGTERM and at the end (while it runs, the one before it
+                        is kept as checkpoint.prev.pt; a finished run drops it)
     OUT/checkpoint.extend.pt   the state at the first step in which seeds stopped (if not
                         all at once): where ``lengthen`` (more episodes, a larger budget)
                         goes on from
@@ -30,6 +30,7 @@ import subprocess
 import sys
 import threading
 import time
+import zipfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Optional
@@ -39,7 +40,8 @@ import torch
 
 from trl_dgpq.analysis.runs import read_csv_exact
 
-from .experiment import MemoryLimit, build, check_memory, describe, load_sections, memory_guard, use_threads
+from .experiment import (MemoryLimit, build, check_memory, describe, load_sections, memory_estimate, memory_guard,
+                         use_threads)
 from .online import OnlineCollector
 
 CONFIG, EPISODES, STATUS, CHECKPOINT = "config.json", "episodes.csv", "status.json", "checkpoint.pt"
@@ -69,6 +71,14 @@ class Interrupted(Exception):
     @property
     def exit_code(self) -> int:
         return 128 + self.signum
+
+
+def disk_note(config: dict) -> str:
+    """What a run's checkpoints will take on disk, from its agents' state at the start: replay
+    buffers are saved at their capacity; a sparse GP saves the slots it uses, up to its
+    budget (Q-hat, growing, may pass the estimate)."""
+    one = memory_estimate(config)
+    return f"checkpoints up to ~{one / 1e6:.3g} MB each (its agents' state when full): 3 while it runs, 2 once finished"
 
 
 def atomic_write(path: Path, write, before_replace=None) -> None:
@@ -314,6 +324,12 @@ class RunFolder:
                 os.replace(latest, self.file(PREVIOUS))
         atomic_write(latest, lambda f: torch.save(state, f), before_replace=rotate)
 
+    def drop_previous(self) -> None:
+        """A finished run's final checkpoint is whole (written atomically): the one before it
+        only took a third of the disk (evaluate and lengthening read the final one and
+        checkpoint.extend.pt)."""
+        self.file(PREVIOUS).unlink(missing_ok=True)
+
     def save_extension_point(self, state: dict) -> None:
         atomic_write(self.file(EXTEND), lambda f: torch.save(state, f))
 
@@ -329,22 +345,26 @@ class RunFolder:
         """The latest checkpoint; if it cannot be read, the previous one, saying so through
         ``log`` (default: stderr) in one line; None if there is none. RunError if neither
         can be read."""
-        latest, previous = self.file(CHECKPOINT), self.file(PREVIOUS)
-        if not latest.exists() and not previous.exists():
+        latest = self.file(CHECKPOINT)
+        # a finished run has dropped checkpoint.prev.pt; where seeds stopped is an earlier state too
+        earlier = [p for p in (self.file(PREVIOUS), self.file(EXTEND)) if p.exists()]
+        if not latest.exists() and not earlier:
             return None
         try:
             return self._read_checkpoint(latest)
         except DamagedCheckpoint as err:  # another format is not damage: no fallback
-            again = "; no checkpoint of this run can be read: start it again (--overwrite)"
-            if not previous.exists():
-                raise RunError(f"{err}{again}") from None
-            try:
-                state = self._read_checkpoint(previous)
-            except DamagedCheckpoint as err2:
-                raise RunError(f"{err}; and {err2}{again}") from None
-            (log or (lambda line: print(line, file=sys.stderr)))(
-                f"{err}; continuing from {previous.name} ({state['episodes_done']} episodes done)")
-            return state
+            errors = [str(err)]
+            for path in earlier:
+                try:
+                    state = self._read_checkpoint(path)
+                except DamagedCheckpoint as err2:
+                    errors.append(str(err2))
+                    continue
+                (log or (lambda line: print(line, file=sys.stderr)))(
+                    f"{'; '.join(errors)}; continuing from {path.name} ({state['episodes_done']} episodes done)")
+                return state
+            raise RunError("; and ".join(errors) + "; no checkpoint of this run can be read: start it again "
+                           "(--overwrite)") from None
 
     def _read_checkpoint(self, path: Path) -> dict:
         if not path.exists():
@@ -352,6 +372,9 @@ class RunFolder:
         try:
             state = torch.load(path, weights_only=True)
         except Exception as err:  # a damaged file, or one holding more than plain data
+            import pickle
+            if isinstance(err, pickle.UnpicklingError) and zipfile.is_zipfile(path):  # not damage: refused, no
+                raise RunError(f"cannot read {path}: {damage(path, err)}") from None   # fallback works around it
             raise DamagedCheckpoint(f"cannot read {path}: {damage(path, err)}") from None
         if not isinstance(state, dict):
             raise DamagedCheckpoint(f"cannot read {path}: it holds a {type(state).__name__}, not a checkpoint")
@@ -368,9 +391,10 @@ def damage(path: Path, err: Exception) -> str:
     import pickle
     import zipfile
     if not zipfile.is_zipfile(path):
-        return ("the file is cut short (a write that did not finish, or a full disk) or damaged"
-                if path.stat().st_size and isinstance(err, RuntimeError) else
-                "the file is damaged: it is not a checkpoint (torch writes zip archives)")
+        with open(path, "rb") as f:
+            begins_as_zip = f.read(4) == b"PK\x03\x04"  # a zip's start without its end (its directory)
+        return ("the file is cut short (a write that did not finish, or a full disk) or damaged" if begins_as_zip
+                else "the file is damaged: it is not a checkpoint (torch writes zip archives)")
     if isinstance(err, pickle.UnpicklingError):
         return ("it holds more than plain data (tensors, numbers, strings), so it is not a checkpoint this "
                 "suite wrote; it is not loaded, as loading it could run code from the file")
@@ -552,6 +576,7 @@ def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: 
     try:
         df = folder.finalize_csv()
         folder.set_status("finished", episodes_done=collector.episodes_done)
+        folder.drop_previous()
     except OSError as err:  # every row and the final checkpoint are on disk; only the sorting failed
         raise RunError(f"cannot write {err.filename or folder.path}: {err.strerror or err}; every episode is in "
                        f"episodes.csv (unsorted): free space, then --resume {folder.path} to finish it") from None

@@ -393,3 +393,30 @@ def test_likelihood_and_state_dict_round_trip(cls, kw):
     for a, b in zip(gp.predict(Xq), other.predict(Xq)):
         assert torch.equal(a, b)
     assert torch.equal(other.likelihood.noise, gp.likelihood.noise)
+
+
+def test_a_saved_sparse_gp_holds_only_its_used_slots_and_loads_back_bitwise(tmp_path):
+    """A checkpoint of sparse GPs keeps the slots up to the largest count (4 here, of 21); loaded
+    into a fresh GP, every buffer equals the original's, zeros beyond included, and the two
+    go on identically (the next add and prediction)."""
+    g = torch.Generator().manual_seed(3)
+    a = SparseOnlineGP(RBFKernel(0.3, 1.0), NOISE, 2, batch_shape=(3,), budget=20, novelty_tol=0.0)
+    for i in range(4):       # GP 0 gets 4 points, GP 1 gets 2, GP 2 none
+        a.add(torch.rand(3, 2, generator=g, dtype=torch.float64), torch.rand(3, generator=g, dtype=torch.float64),
+              mask=torch.tensor([True, i < 2, False]))
+    state = a.state_dict()
+    assert state["CQ"].shape == (3, 4, 8) and state["BV"].shape == (3, 4, 2) and state["alpha"].shape == (3, 4)
+    torch.save(state, tmp_path / "gp.pt")
+    assert (tmp_path / "gp.pt").stat().st_size < 8000    # a clone, not the whole (3, 21, 42) storage: 21 kB
+    b = SparseOnlineGP(RBFKernel(0.3, 1.0), NOISE, 2, batch_shape=(3,), budget=20, novelty_tol=0.0)
+    b.load_state_dict(torch.load(tmp_path / "gp.pt", weights_only=True))
+    for name in ("CQ", "BV", "alpha", "n"):
+        assert torch.equal(getattr(a, name), getattr(b, name)), name
+    x, y = torch.rand(3, 2, generator=g, dtype=torch.float64), torch.rand(3, generator=g, dtype=torch.float64)
+    a.add(x, y)
+    b.add(x, y)
+    xq = torch.rand(3, 5, 2, generator=g, dtype=torch.float64)
+    for u, v in zip(a.predict(xq), b.predict(xq)):
+        assert torch.equal(u, v)
+    with pytest.raises(RuntimeError, match="size mismatch"):   # a GP of another budget is refused by name
+        SparseOnlineGP(RBFKernel(0.3, 1.0), NOISE, 2, batch_shape=(3,), budget=2).load_state_dict(state)

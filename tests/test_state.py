@@ -2,6 +2,8 @@
 way, gives bitwise the same results as the original. And an interrupted run, resumed,
 writes the same episodes.csv as an uninterrupted one."""
 
+import shutil
+
 import pandas as pd
 import pytest
 import torch
@@ -259,11 +261,13 @@ def test_a_damaged_checkpoint_falls_back_to_the_previous_one_and_resumes_to_the_
     assert "the file is cut short" in lines[0] and "zip" not in lines[0]                # our words, not torch's
     runner.resume(part, runner.resumable_config(part), progress=False)
     pd.testing.assert_frame_equal(episodes(whole), episodes(part))            # the CSV cut back to it, redone
-    for path in (latest, previous):
+    extend = part.file("checkpoint.extend.pt")   # the finished run's other earlier state
+    assert extend.exists() and not previous.exists()
+    for path in (latest, previous, extend):
         path.write_bytes(b"not a checkpoint")
     with pytest.raises(runner.RunError, match="cannot read") as err:
         part.load_checkpoint(log=lambda line: None)
-    assert str(err.value).count("it is not a checkpoint") == 2 and "weights_only" not in str(err.value)
+    assert str(err.value).count("it is not a checkpoint") == 3 and "weights_only" not in str(err.value)
     assert str(err.value).endswith("start it again (--overwrite)")
 
 
@@ -371,7 +375,7 @@ def test_a_kill_between_recording_the_length_and_running_it_is_resumed(tmp_path)
 
 
 def test_a_finished_run_with_a_damaged_checkpoint_lengthened_from_the_previous_one_equals_the_longer_run(
-        tmp_path, capsys):
+        tmp_path, capsys, monkeypatch):
     """The user's issue 30: checkpoint.pt cut short, so lengthening falls back to checkpoint.prev.pt,
     taken mid-run (every seed at 3 of 4 episodes, none stopped). Its rows were appended in the
     order episodes ended, but the finished run has since rewritten episodes.csv sorted by seed: the
@@ -381,7 +385,9 @@ def test_a_finished_run_with_a_damaged_checkpoint_lengthened_from_the_previous_o
     whole = runner.RunFolder.create(str(tmp_path / "whole"), "x")
     runner.start(resolve_config(episodes=6, **base), whole, progress=False)
     part = runner.RunFolder.create(str(tmp_path / "part"), "x")
-    runner.start(resolve_config(episodes=4, checkpoint_every=3, **base), part, progress=False)
+    with monkeypatch.context() as m:  # finished by a version that kept checkpoint.prev.pt
+        m.setattr(runner.RunFolder, "drop_previous", lambda self: None)
+        runner.start(resolve_config(episodes=4, checkpoint_every=3, **base), part, progress=False)
     previous = torch.load(part.file("checkpoint.prev.pt"), weights_only=True)["collector"]
     assert previous["episode"].tolist() == [3, 3, 3] and previous["active"].all()
     latest = part.file("checkpoint.pt")
@@ -440,3 +446,35 @@ def test_a_budget_stops_a_seed_at_exactly_its_steps_also_when_lengthened(tmp_pat
         longer = runner.lengthen(folder, runner.resumable_config(folder, lengthen=True), **lengths)
         runner.resume(folder, longer, progress=False)
         assert steps() == [expect, expect], lengths
+
+
+def test_a_finished_run_keeps_what_evaluate_and_lengthening_read_and_a_damaged_one_loses_nothing(
+        tmp_path, capsys):
+    """Once finished, checkpoint.prev.pt goes (a third of the disk); checkpoint.pt and
+    checkpoint.extend.pt stay. With checkpoint.pt then damaged, lengthening goes on from where
+    the seeds stopped and equals the longer run; with both damaged it says what to do, and
+    episodes.csv is as it was."""
+    base = dict(seeds=[0, 1, 2], checkpoint_every=1, max_steps=60)
+    whole = runner.RunFolder.create(str(tmp_path / "whole"), "x")
+    runner.start(resolve_config(episodes=6, **base), whole, progress=False)
+    folder = runner.RunFolder.create(str(tmp_path / "r"), "x")
+    runner.start(resolve_config(episodes=4, **base), folder, progress=False)
+    assert sorted(p.name for p in folder.path.glob("*.pt")) == ["checkpoint.extend.pt", "checkpoint.pt"]
+    copy = tmp_path / "copy"
+    shutil.copytree(folder.path, copy)
+    latest = folder.file("checkpoint.pt")
+    latest.write_bytes(latest.read_bytes()[: latest.stat().st_size // 2])
+    capsys.readouterr()
+    runner.resume(folder, runner.lengthen(folder, runner.resumable_config(folder, lengthen=True), episodes=6),
+                  progress=False)
+    err = capsys.readouterr().err
+    assert "cut short" in err and "continuing from checkpoint.extend.pt" in err
+    pd.testing.assert_frame_equal(episodes(whole), episodes(folder))
+    damaged = runner.RunFolder(copy)
+    rows = damaged.file("episodes.csv").read_bytes()
+    for name in ("checkpoint.pt", "checkpoint.extend.pt"):
+        damaged.file(name).write_bytes(b"not a checkpoint")
+    with pytest.raises(runner.RunError, match="start it again"):
+        runner.resume(damaged, runner.lengthen(damaged, runner.resumable_config(damaged, lengthen=True), episodes=6),
+                      progress=False)
+    assert damaged.file("episodes.csv").read_bytes() == rows

@@ -208,7 +208,8 @@ def _main(argv=None) -> int:
             runner.check_memory(config)
             run = config["run"]
             folder = runner.RunFolder.create(args.out, describe(config).replace("/", "-"), args.overwrite)
-            print(f"{describe(config)}: {count(len(run['seeds']), 'seed')} x {length(run)} -> {folder.path}")
+            print(f"{describe(config)}: {count(len(run['seeds']), 'seed')} x {length(run)} -> {folder.path}; "
+                  f"{runner.disk_note(config)}")
             df = runner.start(config, folder, progress=not args.no_progress)
     except runner.Interrupted as stop:
         print(f"{stop} after {stop.episodes_done} episodes; checkpoint saved. "

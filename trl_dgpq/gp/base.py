@@ -216,6 +216,28 @@ class BatchedGP(nn.Module):
             else:
                 self._narrow(k, getattr(self, k), width)[rows] = st[k]
 
+    def _save_to_state_dict(self, destination, prefix, keep_vars):
+        """A saved GP holds its used slots only (``_width``; a checkpoint of 42 sparse GPs that
+        use 10 of 101 slots: 0.3 MB, not 6.9): the zeros beyond them come back on load."""
+        super()._save_to_state_dict(destination, prefix, keep_vars)
+        width = self._width(self.n)
+        if width is not None:
+            for k in self._state_names:
+                if k != "n":  # a copy: a saved view would carry its whole storage
+                    destination[prefix + k] = self._narrow(k, destination[prefix + k], width).clone()
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        for k in self._state_names:
+            saved, full = state_dict.get(prefix + k), getattr(self, k)
+            if k == "n" or saved is None or saved.shape == full.shape or saved.dim() != full.dim():
+                continue
+            padded = torch.zeros_like(full)
+            region = self._narrow(k, padded, saved.shape[1])
+            if region.shape == saved.shape:  # else: nn.Module's own size-mismatch error names it
+                region.copy_(saved)
+                state_dict[prefix + k] = padded
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
     def _width(self, n: torch.Tensor, adding: bool = False) -> Optional[int]:
         """How many leading slots (dim 1 of every state tensor but n) GPs with counts
         ``n`` use, so that a gather copies only those; None = all. Backends whose
