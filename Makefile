@@ -34,7 +34,7 @@ docs: $(STAMP)
 # Mutation testing (mutmut; slow, so never in `make test` or CI), niced, with the tests that name
 # the modules unless TESTS is given; K is a pytest -k expression, AGAIN=1 retests the last survivors:
 #   make mutate MODULES="envs/f16 collectors/evaluate.py" [TESTS="tests/test_f16.py"] [K="not slow"]
-# Per-module score (killed / total) and the survivors; see docs/mutation.md and scripts/mutate.py.
+# Per-module score (killed / total) and the survivors; see docs/testing.md and scripts/mutate.py.
 mutate: $(STAMP)
 	@test -n "$(MODULES)" || { echo 'make mutate MODULES="envs/f16 collectors/evaluate.py" [TESTS=...] [K=...]'; exit 2; }
 	@$(BIN)/python -c "import mutmut" 2>/dev/null || $(BIN)/pip install -q -e ".[mutate]"
