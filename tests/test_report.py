@@ -62,7 +62,7 @@ def test_mountaincar_flag_and_groups(tmp_path):
     assert "| dgpq noisy | 1 | 200 (1/1 seeds met it) | 200 [200, 200] | 20 [20, 20] | 20 [20, 20] |" in text
     assert "| dqn quiet | 1 | never (0/1 seeds met it) | 600 [600, 600] | 40 [40, 40] | 40 [40, 40] |" in text
     assert sorted(p.name for p in written) == ["compare-gym-MountainCar-v0.png", "compare-square-reward_noise-0.0.png",
-                                               "compare-square-reward_noise-0.1.png", "compare.md"]
+                                               "compare-square-reward_noise-0.1.png", "compare.md", "results.csv"]
     assert all(p.stat().st_size > 0 for p in written)
 
 

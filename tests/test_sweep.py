@@ -260,6 +260,12 @@ def test_reproduce_writes_every_figure_and_the_report(tmp_path):
                 "push/push.png", "push/push.gif", "liquidation/liquidation_cost.png", "liquidation/liquidation_time.png",
                 "liquidation/holdings.png", "square/qhat.png", "f16/f16_reward.png", "f16/f16_trace.png"):
         assert (out / fig).is_file(), fig
+    import csv
+
+    from trl_dgpq.analysis import results
+    with open(out / "results.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert tuple(rows[0]) == results.COLUMNS and {r["experiment"] for r in rows} == set(reproduce.experiments("smoke"))
     assert reproduce.main(["--scale", "smoke", "--out", str(out)]) == 0          # again: nothing to rerun
     assert reproduce.main(["--scale", "quick", "--out", str(out)]) == 2          # another sweep's folder
 

@@ -21,7 +21,8 @@ never met it counts as the budget (so that IQM is a lower bound). Under the tabl
 probability that a DGPQ run improves on a DQN run of the same task, with its CI; and
 ``profiles.png``, rliable's performance profiles of each agent over every task it ran
 (at-budget scores, each task scaled to [0, 1] by the worst and best any run had; an
-agent with several runs on a task is represented by the first given).
+agent with several runs on a task is represented by the first given). And ``results.csv``,
+one row per run (``results.py``: the form ``results/`` keeps in the repository).
 """
 from __future__ import annotations
 
@@ -33,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from . import results
 from .runs import load_run
 from .stats import iqm, normalised, oriented, probability_of_improvement, profiles
 from .summary import at_budget, curve, kernel_fits_per_seed, ms_per_seed_step, steps_to_threshold
@@ -203,4 +205,6 @@ def report(runs, labels, out: Path, budget=None, window: int = WINDOW) -> tuple:
     text = "\n".join(lines)
     (out / "compare.md").write_text(text)
     written.append(out / "compare.md")
+    written.append(results.write([results.row(label, run) for label, run in zip(labels, loaded)],
+                                 out / "results.csv"))
     return written, text

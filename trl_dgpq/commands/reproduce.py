@@ -7,6 +7,7 @@
                                                    # in parts, each call continues where the last stopped)
     python scripts/reproduce.py --out runs/repro   # run it again: continues what did not finish
     python scripts/reproduce.py --only f16         # one domain's experiments and section
+    python scripts/reproduce.py --scale report --publish results/report   # what the repository keeps
 
 Each domain with a reproduction (``REPRODUCE``, ``SCALES`` and ``reproduce_section`` in
 ``envs/<domain>/analysis.py``: the square's presets and kernels, Figures 2-4; block
@@ -85,7 +86,35 @@ def write_report(out: Path, scale: str, wall: float, only=None) -> Path:
                 for _, analysis in reproductions(only)]
     path = out / "REPORT.md"
     path.write_text(head + "\n".join(sections))
+    from trl_dgpq.analysis import results
+    results.write([results.row(name, load_run(out / name)) for _, analysis in reproductions(only)
+                   for name, *_ in analysis.REPRODUCE if (out / name / "episodes.csv").is_file()],
+                  out / "results.csv")
     return path
+
+
+FIGURES = ("*.png", "*.gif")
+
+
+def publish(out: Path, to: Path) -> list:
+    """REPORT.md, results.csv and the figures of ``out`` (``square/qhat.png``: paths kept; none of
+    a run folder's) into ``to``, e.g. results/report: the files the repository keeps. The
+    report, tables and figures ``to`` held before go first (nothing else is touched), so it
+    holds one run's."""
+    import shutil
+    figures = [f for pattern in FIGURES for f in out.rglob(pattern)
+               if not (f.parent / "episodes.csv").exists() and "jobs" not in f.relative_to(out).parts]
+    keep = [out / "REPORT.md", out / "results.csv", *sorted(figures)]
+    if to.exists():
+        for old in [f for pattern in ("*.md", "*.csv", *FIGURES) for f in to.rglob(pattern)]:
+            old.unlink()
+    copied = []
+    for f in keep:
+        if f.is_file():
+            target = to / f.relative_to(out)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            copied.append(Path(shutil.copy2(f, target)))
+    return copied
 
 
 def main(argv=None) -> int:
@@ -97,6 +126,8 @@ def main(argv=None) -> int:
     p.add_argument("--only", nargs="+", choices=[d.name for d, _ in reproductions()], default=None, metavar="DOMAIN",
                    help="these domains' experiments and sections only (default: all): "
                         + ", ".join(d.name for d, _ in reproductions()))
+    p.add_argument("--publish", default=None, metavar="DIR",
+                   help="copy REPORT.md, results.csv and the figures into DIR when done (what results/ keeps)")
     args = p.parse_args(argv)
     suffix = "".join(f"-{d}" for d in args.only or ())
     out = Path(args.out or f"runs/reproduce-{args.scale}{suffix}")
@@ -118,7 +149,10 @@ def main(argv=None) -> int:
         if sweep.exit_code(report, "the same command"):
             return 1
         path = write_report(out, args.scale, time.perf_counter() - t0, args.only)
-        print(f"wrote {path} and its figures", flush=True)
+        print(f"wrote {path}, {out / 'results.csv'} and the figures", flush=True)
+        if args.publish:
+            copied = publish(out, Path(args.publish))
+            print(f"published {len(copied)} files to {args.publish}", flush=True)
         return 0
     return sweep.run_script(prog("reproduce"), "the same command", body)
 

@@ -1,0 +1,103 @@
+"""One row per experiment: the summary the repository keeps under ``results/`` (never the runs).
+
+``report`` writes ``results.csv`` beside ``compare.md``, ``reproduce`` beside REPORT.md; the
+columns are ``COLUMNS`` in both, so a committed file and the next run's cannot drift apart
+(tests/test_results.py). Each row says what ran (env, agent, preset, seeds, length), what
+came out (the domain's measure over each seed's last ``last`` episodes: median, IQM and its
+95 % bootstrap CI over seeds), what it cost (microseconds per seed-step), at which commit,
+and the command that runs it again: ``train.py`` with the run's preset and a ``--set`` for
+every setting that differs from it.
+"""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from .stats import iqm
+from .summary import ms_per_seed_step
+
+COLUMNS = ("experiment", "env", "agent", "preset", "seeds", "episodes", "env_steps", "measure", "last",
+           "median", "iqm", "iqm_low", "iqm_high", "us_per_seed_step", "commit", "command")
+
+
+def seeds_text(seeds) -> str:
+    """As --seeds reads it back: 0-9 for a range (5-5 for seed 5 alone: "5" would be 5 seeds),
+    else 0,2,5."""
+    seeds = list(seeds)
+    if seeds == list(range(seeds[0], seeds[-1] + 1)):
+        return f"{seeds[0]}-{seeds[-1]}"
+    return ",".join(map(str, seeds))
+
+
+def cli_value(value) -> str:
+    """A setting's value as ``--set`` reads it back."""
+    if value is None:
+        return "none"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, (list, tuple)):
+        return ",".join(cli_value(v) for v in value)
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def differences(recorded: dict, preset: dict, prefix: str) -> list:
+    """``--set`` items for the settings where the recorded section differs from the preset's."""
+    out = []
+    for key, value in recorded.items():
+        if isinstance(value, dict):
+            out += differences(value, preset.get(key, {}), f"{prefix}{key}.")
+        elif preset.get(key) != value:
+            out.append(f"{prefix}{key}={cli_value(value)}")
+    return out
+
+
+def train_command(config: dict) -> str:
+    """The train.py command that resolves to ``config`` (its run, env and agent sections)."""
+    from trl_dgpq.collectors.experiment import resolve_config
+    run = config["run"]
+    length = {"episodes": run["episodes"], "env_steps": run["env_steps"]}
+    base = resolve_config(env=run["env"], agent=run["agent"], preset=run["preset"], seeds=run["seeds"], **length)
+    words = ["python scripts/train.py", f"--env {run['env']}", f"--agent {run['agent']}", f"--preset {run['preset']}",
+             f"--seeds {seeds_text(run['seeds'])}", f"--episodes {run['episodes']}"]
+    if run["env_steps"]:
+        words.append(f"--env-steps {run['env_steps']}")
+    for section in ("env", "agent"):
+        words += [f"--set {item}" for item in differences(config[section], base[section], f"{section}.")]
+    return " ".join(words)
+
+
+def row(experiment: str, run, last: Optional[int] = None, command: Optional[str] = None) -> dict:
+    """The row of one run (``analysis.runs.Run``): its measure over each seed's last ``last``
+    episodes (default: the domain's ``DEFAULT_LAST``, else 10)."""
+    column, _ = run.domain.measure(run.env_id)
+    if last is None:
+        last = getattr(run.domain.analysis(), "DEFAULT_LAST", 10)
+    per_seed = run.df.sort_values(["seed", "episode"]).groupby("seed").tail(last).groupby("seed")[column].mean()
+    point, low, high = iqm(per_seed.to_numpy())
+    # a sweep's experiment: its config is its first job's, its episodes every job's seeds
+    recorded = run.config["run"]
+    cfg = {**run.config, "run": {**recorded, "seeds": [int(s) for s in per_seed.index],
+                                 "episodes": recorded.get("episodes", int(run.df.episode.max())),
+                                 "env_steps": recorded.get("env_steps", 0)}}
+    if command is None:
+        try:
+            command = train_command(cfg)
+        except (ValueError, KeyError) as err:  # a preset since removed: say so, not a wrong command
+            command = f"(cannot be rebuilt here: {err})"
+    return dict(experiment=experiment, env=run.env, agent=run.agent, preset=run.preset,
+                seeds=seeds_text(cfg["run"]["seeds"]), episodes=cfg["run"]["episodes"],
+                env_steps=cfg["run"]["env_steps"], measure=column, last=last,
+                median=float(np.median(per_seed)), iqm=point, iqm_low=low, iqm_high=high,
+                us_per_seed_step=round(ms_per_seed_step(run.df) * 1e3, 1),
+                commit=(cfg.get("git") or {}).get("commit", ""), command=command)
+
+
+def write(rows: list, path: Path) -> Path:
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=COLUMNS)
+        w.writeheader()
+        w.writerows({k: (f"{v:.10g}" if isinstance(v, float) else v) for k, v in r.items()} for r in rows)
+    return path
