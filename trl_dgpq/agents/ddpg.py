@@ -232,6 +232,6 @@ class DDPG(SeedBatchedLearner):
 
     @staticmethod
     def memory_bytes(cfg: DDPGConfig, info, num_seeds: int) -> int:
-        """The replay memory when full (observation, next observation, action, flags)."""
+        """The replay memory when full (observation, next observation, action, reward, flags)."""
         dim, act = info.observation_dim, int(info.action_box("ddpg").shape[-1])
-        return num_seeds * cfg.buffer_size * 4 * (2 * dim + act + 4)
+        return num_seeds * cfg.buffer_size * (4 * (2 * dim + act + 1) + 2)
