@@ -260,3 +260,142 @@ def test_the_report_row_never_shows_a_window_the_run_did_not_cover():
     cells = [c.strip() for c in analysis.row("f16-dgpq-lq5", long).strip("|").split("|")]
     assert cells[3] == "-200" and cells[4] == "-40 (901-1000)"
     assert analysis.late_window(150) == (141, 150)
+
+
+# ------------------------------------------------------------ issue 30: what mutation testing found untested
+from trl_dgpq.envs.f16.baselines import LQRConfig, LQRPolicy, PDConfig, PDPolicy, quantised  # noqa: E402
+from trl_dgpq.envs.f16.dynamics import B  # noqa: E402
+
+
+def lqr_gain_by_hand(dt, r=0.3):
+    """K of the LQR for x'Qx (Q: (h/100)^2 + (hdot/100)^2) + r u^2, from scipy's Riccati solver
+    on the model discretised by scipy's matrix exponential (a decision of ``dt`` seconds)."""
+    scipy_linalg = pytest.importorskip("scipy.linalg")
+    a, b = (t.numpy() for t in continuous())
+    m = np.zeros((6, 6))
+    m[:5, :5], m[:5, 5] = a, b
+    e = scipy_linalg.expm(m * dt)
+    ad, bd = e[:5, :5], e[:5, 5]
+    rate = np.array([0.0, 0.0, -V_T0, V_T0, 0.0]) / 100
+    q = np.diag([1e-4, 0, 0, 0, 0]) + np.outer(rate, rate)
+    p = scipy_linalg.solve_discrete_are(ad, bd[:, None], q, np.array([[r]]))
+    return (bd @ p @ ad) / (r + bd @ p @ bd)
+
+
+def test_the_model_is_float64_as_published():
+    """B's entries reach the 5-D model unrounded (a float32 copy would lose them after 7 digits)."""
+    a, b = continuous()
+    assert a.dtype == b.dtype == torch.float64
+    assert torch.equal(b[1:], B) and b[0] == 0 and torch.equal(a[1:, 1:], A)
+
+
+@pytest.mark.parametrize("start, inside", [(dict(h0=500.0, h_max=400.0), dict(h0=399.0, h_max=400.0)),
+                                           (dict(h0=-400.0, h_max=400.0), dict(h0=-399.0, h_max=400.0)),
+                                           (dict(pitch0=0.2, attitude_max=0.2), dict(pitch0=0.19, attitude_max=0.2)),
+                                           (dict(pitch0=-0.25, attitude_max=0.2), dict(pitch0=-0.19, attitude_max=0.2))])
+def test_a_start_on_or_outside_the_envelope_is_refused_in_our_words(start, inside):
+    """Each setting within its own range, the start on or beyond the envelope's edge (h0 alone,
+    or pitch0 alone): cross_check refuses it, naming both; just inside is accepted."""
+    with pytest.raises(ValueError, match=r"the start \(h0 .*, pitch0 .*\) must be inside the envelope \(h_max "):
+        F16Env([0], **start)
+    F16Env([0], **inside)
+
+
+def test_specs_bound_the_observation_and_name_three_actions():
+    env = F16Env([0, 1])
+    obs = env.observation_spec["observation"]
+    assert obs.dtype == torch.float64 and obs.shape == (2, 5)
+    assert torch.equal(obs.space.low, -torch.ones(2, 5, dtype=torch.float64))
+    assert torch.equal(obs.space.high, torch.ones(2, 5, dtype=torch.float64))
+    assert env.action_spec.space.n == 3 and env.action_names == ("nose-up", "hold", "nose-down")
+    assert env.elevator(torch.tensor([0, 1, 2])).dtype == torch.float64
+    assert env.elevator(torch.tensor([0, 1, 2])).tolist() == [-1.0, 0.0, 1.0]
+
+
+def test_the_observation_is_the_state_over_the_envelopes_half_widths():
+    """Half-widths no float32 holds exactly: the observation is the float64 quotient."""
+    env = F16Env([0], h0=100.0, pitch0=0.05, h_max=333.3, vt_scale=77.7, attitude_max=0.33, rate_max=0.77)
+    obs = env.reset()["observation"][0]
+    assert obs.tolist() == [100.0 / 333.3, 0.0, 0.05 / 0.33, 0.05 / 0.33, 0.0]
+    td = env.reset()
+    td["action"] = torch.tensor([2])
+    nxt = env.step(td)["next"]
+    x = nxt["state"][0].tolist()
+    assert nxt["observation"][0].tolist() == [x[0] / 333.3, x[1] / 77.7, x[2] / 0.33, x[3] / 0.33, x[4] / 0.77]
+
+
+def test_the_elevator_deflection_scales_the_control():
+    """elevator_deg 0.7: actions -1, 0, +1 deflect -0.7, 0, +0.7 degrees (Runge-Kutta by hand);
+    the reward charges |action|, not degrees."""
+    env = F16Env([0, 1, 2], noise_v=0.0, noise_alpha=0.0, elevator_deg=0.7)
+    td = env.reset()
+    td["action"] = torch.tensor([0, 1, 2])
+    out = env.step(td)["next"]
+    a, b = (t.numpy() for t in continuous())
+    for i, e in enumerate((-1.0, 0.0, 1.0)):
+        x = rk4(a, b, np.array([20.0, 0.0, 0.01, 0.01, 0.0]), 0.7 * e, 0.05, 50)
+        np.testing.assert_allclose(out["state"][i].numpy(), x, rtol=1e-10, atol=1e-13)
+        expect = -abs(x[0]) / 100 - abs(V_T0 * (x[3] - x[2])) / 100 - abs(e)
+        assert float(out["reward"][i]) == pytest.approx(expect, rel=1e-10)
+
+
+def test_each_bounded_component_alone_leaves_the_envelope():
+    """Rows placed by hand: |h| 1,010 ft (h_max 1,000), alpha 0.6, theta 0.6 (0.5), q 1.2 rad/s (1),
+    V_T 200 ft/s (no envelope), all inside: one step ends exactly the first four."""
+    env = F16Env(list(range(6)), noise_v=0.0, noise_alpha=0.0)
+    td = env.reset()
+    env.state[:] = torch.tensor([[-1010.0, 0, 0, 0, 0], [0, 0, 0.6, 0, 0], [0, 0, 0, 0.6, 0], [0, 0, 0, 0, 1.2],
+                                 [0, 200.0, 0, 0, 0], [20.0, 0, 0.01, 0.01, 0]], dtype=torch.float64)
+    td["action"] = torch.ones(6, dtype=torch.long)
+    out = env.step(td)["next"]
+    assert out["terminated"][:, 0].tolist() == [True, True, True, True, False, False]
+    assert (out["state"].abs()[:4].max(-1).values > torch.tensor([1000, 0.5, 0.5, 1.0], dtype=torch.float64)).all()
+
+
+def test_the_envelopes_edge_is_inside():
+    """theta after one step, to the last bit, as attitude_max: still inside (|theta| > the edge
+    leaves); the next float below it: out."""
+    env = F16Env([0], noise_v=0.0, noise_alpha=0.0)
+    td = env.reset()
+    td["action"] = torch.tensor([1])
+    theta = float(env.step(td)["next", "state"][0, 3])
+    assert 0.01 < theta < 0.02
+    for edge, out in ((theta, False), (np.nextafter(theta, 0.0), True)):
+        env = F16Env([0], noise_v=0.0, noise_alpha=0.0, attitude_max=float(edge))
+        td = env.reset()
+        td["action"] = torch.tensor([1])
+        assert bool(env.step(td)["next", "terminated"][0]) == out
+
+
+def test_quantised_rounds_to_the_nearest_setting_and_clips_beyond():
+    """Commands in degrees with 2-degree settings: nearest of -2, 0, +2 (actions 0, 1, 2)."""
+    command = torch.tensor([-9.0, -3.1, -2.9, -0.9, 0.9, 1.1, 2.9, 3.1, 40.0], dtype=torch.float64)
+    assert quantised(command, 2.0).tolist() == [0, 0, 0, 1, 1, 2, 2, 2, 2]
+    assert quantised(command, 2.0).dtype == torch.long
+
+
+def test_pd_commands_its_law_by_hand():
+    cfg = PDConfig(k_h=0.01, k_hdot=0.003, k_theta=12.0, k_q=4.0)
+    env = F16Env([0, 1], elevator_deg=0.5)
+    policy = PDPolicy.make(cfg, env.info, [0, 1])
+    x = torch.tensor([[10.0, 5.0, 0.02, 0.05, 0.1], [-30.0, 0.0, 0.01, -0.02, -0.3]], dtype=torch.float64)
+    by_hand = [0.01 * h + 0.003 * V_T0 * (th - al) + 12.0 * th + 4.0 * q for h, _, al, th, q in x.tolist()]
+    assert policy.command(x).tolist() == pytest.approx(by_hand, rel=1e-12)
+    assert by_hand[0] > 0.75 and by_hand[1] < -0.75                     # beyond half a 0.5-degree setting
+    assert policy.act({"state": x}).tolist() == [2, 0]
+
+
+def test_lqr_policy_is_the_riccati_gain_of_one_decision():
+    """5 simulator steps per decision, r = 0.1, 2-degree settings: the gain of the model held
+    over 0.25 s, to 4e-10 of scipy's (float32 anywhere in Q, or stopping the recursion at an
+    absolute 1e-8, moves it by 1e-9 to 4e-8); its command -Kx quantised to 2-degree settings."""
+    env = F16Env([0, 1], decision_steps=5, elevator_deg=2.0)
+    policy = LQRPolicy.make(LQRConfig(r=0.1), env.info, [0, 1])
+    k = lqr_gain_by_hand(0.25, r=0.1)
+    np.testing.assert_allclose(policy.gain.numpy(), k, rtol=4e-10)
+    x = torch.tensor([[40.0, 3.0, 0.02, 0.05, 0.1], [-20.0, 0.0, 0.01, -0.01, -0.05]], dtype=torch.float64)
+    command = -(x.numpy() @ k)
+    np.testing.assert_allclose(policy.command(x).numpy(), command, rtol=1e-12)
+    assert policy.act({"state": x}).tolist() == [int(np.clip(np.round(c / 2.0), -1, 1)) + 1 for c in command]
+    np.testing.assert_allclose(LQRPolicy.make(LQRConfig(), F16Env([0]).info, [0]).gain.numpy(),
+                               lqr_gain_by_hand(0.05, r=0.3), rtol=4e-10)

@@ -46,7 +46,7 @@ def fly(env, policy) -> dict:
     t, h, e, total = [0.0], [float(td["state"][0, 0])], [], 0.0
     for td, nxt, _ in episode_steps(env, policy, td, row=0):
         e.append(int(td["action"][0]) - 1)
-        t.append(t[-1] + env.cfg.dt)
+        t.append(t[-1] + env.cfg.dt * env.cfg.decision_steps)  # a decision holds the elevator this long
         h.append(float(nxt["state"][0, 0]))
         total += float(nxt["reward"][0])
     return dict(t=np.array(t), h=np.array(h), elevator=np.array(e), reward=total)
