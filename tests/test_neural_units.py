@@ -265,6 +265,9 @@ def test_a_restored_learner_is_the_original_and_continues_as_it(make, action):
     assert int(a.updates[0]) > 4
     with pytest.raises(ValueError, match=f"{type(a).__name__.lower()} state is for 2 seeds, not 3"):
         make([0, 1, 2]).load_state_dict(state)
+    with pytest.raises(ValueError, match=r"^this checkpoint holds one learner per seed \(an earlier version\); it "
+                                         r"cannot be resumed by the seed-batched learners: start the run again$"):
+        make([0, 1]).load_state_dict({**state, "learners": [{}, {}]})
 
 
 # --- dqn.py -----------------------------------------------------------------------------------------
@@ -357,6 +360,37 @@ def test_ddpg_memory_estimate_is_the_full_replay_as_stored():
     stored = agent.replay.storage._storage
     assert sum(t.nbytes for t in stored.values(True, True)) == 3 * 8 * (2 * 8 * 4 + 4 + 4 + 2) == 1776
     assert memory_estimate(config) == 1776
+
+
+def test_ddpg_memory_estimate_counts_every_action_dimension():
+    """Two actions, 3 observations, 2 seeds, a buffer of 6: 2 x 3 x 4 + 2 x 4 + 4 + 2 = 38 bytes a
+    transition, 2 x 6 x 38 = 456, as stored."""
+    class Info:
+        observation_dim = 3
+
+        @staticmethod
+        def action_box(who):
+            return BOX2
+    cfg = DDPGConfig(actor_hidden=(4,), critic_hidden=(4, 4), buffer_size=6, batch_size=6)
+    agent = DDPG(cfg, [0, 1], 3, BOX2)
+    for td in transitions(6, 2, action=("box", 2)):
+        agent.observe(td)
+    stored = agent.replay.storage._storage
+    assert sum(t.nbytes for t in stored.values(True, True)) == 2 * 6 * 38 == 456
+    assert DDPG.memory_bytes(cfg, Info, 2) == 456
+
+
+def test_ddpg_actions_at_the_top_of_the_box_stay_inside_it():
+    """Box [-0.3, 1.1] and an actor saturated (tanh = 1): -0.3 + (1.1 + 0.3) is 1.2e-7 above 1.1 in
+    float32; the action given, with or without noise, is 1.1 itself, never outside the box."""
+    box = Bounded(torch.tensor([[-0.3]]), torch.tensor([[1.1]]), shape=(1, 1))
+    agent = DDPG(DDPGConfig(actor_hidden=(4,), critic_hidden=(4, 4), ou_sigma=0.0), [0, 1], 3, box)
+    with torch.no_grad():
+        agent.actor.mlp.net[-1].bias.fill_(50.0)
+    td = TensorDict({"observation": torch.rand(2, 3, dtype=torch.float64)}, batch_size=[2])
+    high = torch.tensor(1.1, dtype=torch.float32).double()
+    assert float(agent.actor(td["observation"].float()).max()) > 1.1  # the map alone overshoots
+    assert bool((agent.exploit(td) == high).all()) and bool((agent.act(td) == high).all())
 
 
 def test_ddpg_batch_size_up_to_the_buffer_is_accepted():
