@@ -120,7 +120,7 @@ def add_setting_flags(p: argparse.ArgumentParser, settings: dict) -> None:
                 + (f" {{{', '.join(lf.choices)}}}" if lf.choices else "") for name, lf in owners) + "]"
         else:  # ... meaning something else in each (--reward): each one's own help, not the first's alone
             text = "; ".join(f"{name.removesuffix('Config')}: {lf.help} [{describe_default(lf)}]"
-                             for name, lf in owners)
+                             + (f" {{{', '.join(lf.choices)}}}" if lf.choices else "") for name, lf in owners)
         if leaf.type is bool:
             g.add_argument(flag, dest=key, action=argparse.BooleanOptionalAction, default=None, help=text)
         else:
