@@ -531,3 +531,122 @@ def test_lengthen_refuses_anything_shorter(tmp_path):
         runner.lengthen(folder, config, env_steps=50)
     assert folder.status()["status"] == "interrupted" and folder.status()["reason"] is None  # nothing written
     assert runner.lengthen(folder, config, episodes=6, env_steps=0)["run"]["episodes"] == 6
+
+
+def small(**kw):
+    from trl_dgpq.collectors.experiment import resolve_config
+    return resolve_config(**{**dict(seeds=[0, 1], episodes=3, agent="random", max_steps=20), **kw})
+
+
+def test_a_crash_marks_the_run_failed_and_is_raised_as_it_was(tmp_path, stop_run_after):
+    folder = RunFolder.create(str(tmp_path / "r"), "x")
+    stop_run_after(2, "crash")
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        runner.start(small(), folder, progress=False)
+    s = folder.status()
+    assert s["status"] == "failed" and s["reason"] == "RuntimeError: simulated crash"
+    assert s["episodes_done"] >= 2 and folder._lock is None  # released however it ends
+
+
+def test_a_signal_marks_the_run_interrupted_with_a_checkpoint_covering_the_rows(tmp_path, stop_run_after):
+    import signal
+    folder = RunFolder.create(str(tmp_path / "r"), "x")
+    stop_run_after(1, "signal")
+    with pytest.raises(runner.Interrupted) as exc:
+        runner.start(small(), folder, progress=False)
+    s = folder.status()
+    assert (s["status"], s["reason"]) == ("interrupted", "SIGINT") and exc.value.signum == signal.SIGINT
+    done = folder.load_checkpoint(log=pytest.fail)["episodes_done"]
+    assert exc.value.episodes_done == s["episodes_done"] == done == len(folder.episodes()) >= 1
+    assert exc.value.folder is folder and folder._lock is None
+
+
+def test_a_full_disk_mid_run_is_one_line_and_resume_finishes(tmp_path, monkeypatch):
+    folder = RunFolder.create(str(tmp_path / "r"), "x")
+    whole = runner.start(small(), RunFolder.create(str(tmp_path / "whole"), "x"), progress=False)
+    calls, append = [0], RunFolder.append_rows
+
+    def fills(self, rows):
+        calls[0] += 1
+        if calls[0] == 2:
+            raise OSError(errno.ENOSPC, "No space left on device", str(self.file(runner.EPISODES)))
+        return append(self, rows)
+    monkeypatch.setattr(RunFolder, "append_rows", fills)
+    with pytest.raises(runner.RunError) as exc:
+        runner.start(small(), folder, progress=False)
+    assert str(exc.value) == (f"cannot write {folder.file(runner.EPISODES)}: No space left on device; the rows and "
+                              f"the checkpoint written before are whole: free space, then --resume {folder.path}")
+    s = folder.status()
+    assert s["status"] == "failed" and s["reason"].startswith("OSError: [Errno 28] No space left on device")
+    monkeypatch.undo()
+    folder = RunFolder.existing(folder.path)
+    df = runner.resume(folder, runner.resumable_config(folder), progress=False)
+    import pandas as pd
+    from trl_dgpq.collectors.experiment import TIMING_COLUMNS
+    pd.testing.assert_frame_equal(df.drop(columns=list(TIMING_COLUMNS)), whole.drop(columns=list(TIMING_COLUMNS)))
+
+
+def test_a_full_disk_also_for_the_status_is_still_one_line(tmp_path, monkeypatch):
+    folder = RunFolder.create(str(tmp_path / "r"), "x")
+
+    def full(self, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device", str(self.file(runner.EPISODES)))
+    monkeypatch.setattr(RunFolder, "append_rows", full)
+    statuses = []
+    set_status = RunFolder.set_status
+
+    def status_fails_when_failed(self, status, *a, **k):
+        statuses.append(status)
+        if status == "failed":
+            raise OSError(errno.ENOSPC, "No space left on device", "status.json")
+        return set_status(self, status, *a, **k)
+    monkeypatch.setattr(RunFolder, "set_status", status_fails_when_failed)
+    with pytest.raises(runner.RunError, match="^cannot write .*episodes.csv: No space left on device; the rows"):
+        runner.start(small(), folder, progress=False)
+    assert statuses == ["running", "failed"] and folder.status()["status"] == "running"
+
+
+def test_a_full_disk_when_sorting_leaves_every_row_and_says_resume_finishes_it(tmp_path, monkeypatch):
+    folder = RunFolder.create(str(tmp_path / "r"), "x")
+
+    def full(self):
+        raise OSError(errno.ENOSPC, "No space left on device", str(self.file(runner.EPISODES)))
+    monkeypatch.setattr(RunFolder, "finalize_csv", full)
+    with pytest.raises(runner.RunError) as exc:
+        runner.start(small(), folder, progress=False)
+    assert str(exc.value) == (f"cannot write {folder.file(runner.EPISODES)}: No space left on device; every episode "
+                              f"is in episodes.csv (unsorted): free space, then --resume {folder.path} to finish it")
+    assert folder.status()["status"] == "running" and len(folder.episodes()) == 6
+    monkeypatch.undo()
+    folder = RunFolder.existing(folder.path)
+    df = runner.resume(folder, runner.resumable_config(folder), progress=False)
+    assert list(zip(df.seed, df.episode)) == [(0, 1), (0, 2), (0, 3), (1, 1), (1, 2), (1, 3)]
+    assert folder.finished() and not folder.file(runner.PREVIOUS).exists()
+
+
+def test_a_finished_run_has_its_final_checkpoint_and_drops_the_previous(tmp_path):
+    folder = RunFolder.create(str(tmp_path / "r"), "x")
+    df = runner.start(small(seeds=[0], episodes=4, checkpoint_every=1), folder, progress=False)
+    assert list(df.episode) == [1, 2, 3, 4]
+    s = folder.status()
+    assert (s["status"], s["episodes_done"]) == ("finished", 4)
+    assert folder.load_checkpoint(log=pytest.fail)["episodes_done"] == 4
+    assert not folder.file(runner.PREVIOUS).exists()
+    assert not folder.file(runner.EXTEND).exists()           # one seed: every seed stopped at once
+    assert folder.read_json(runner.CONFIG)["run"]["episodes"] == 4 and "git" in folder.read_json(runner.CONFIG)
+
+
+def test_checkpoints_are_taken_every_so_many_episodes_per_seed(tmp_path, monkeypatch):
+    saved, save = [], RunFolder.save_checkpoint
+
+    def counting(self, state):
+        saved.append(state["episodes_done"])
+        return save(self, state)
+    monkeypatch.setattr(RunFolder, "save_checkpoint", counting)
+    runner.start(small(seeds=[0], episodes=7, checkpoint_every=3), RunFolder.create(str(tmp_path / "a"), "x"),
+                 progress=False)
+    assert saved == [3, 6, 7]
+    saved.clear()
+    runner.start(small(seeds=[0], episodes=3, checkpoint_every=0), RunFolder.create(str(tmp_path / "b"), "x"),
+                 progress=False)
+    assert saved == [3]
