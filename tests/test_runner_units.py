@@ -578,6 +578,7 @@ def test_a_full_disk_mid_run_is_one_line_and_resume_finishes(tmp_path, monkeypat
                               f"the checkpoint written before are whole: free space, then --resume {folder.path}")
     s = folder.status()
     assert s["status"] == "failed" and s["reason"].startswith("OSError: [Errno 28] No space left on device")
+    assert isinstance(s["episodes_done"], int) and s["episodes_done"] >= 1
     monkeypatch.undo()
     folder = RunFolder.existing(folder.path)
     df = runner.resume(folder, runner.resumable_config(folder), progress=False)
@@ -604,6 +605,7 @@ def test_a_full_disk_also_for_the_status_is_still_one_line(tmp_path, monkeypatch
     with pytest.raises(runner.RunError, match="^cannot write .*episodes.csv: No space left on device; the rows"):
         runner.start(small(), folder, progress=False)
     assert statuses == ["running", "failed"] and folder.status()["status"] == "running"
+    assert folder.status()["episodes_done"] == 0
 
 
 def test_a_full_disk_when_sorting_leaves_every_row_and_says_resume_finishes_it(tmp_path, monkeypatch):
@@ -650,3 +652,70 @@ def test_checkpoints_are_taken_every_so_many_episodes_per_seed(tmp_path, monkeyp
     runner.start(small(seeds=[0], episodes=3, checkpoint_every=0), RunFolder.create(str(tmp_path / "b"), "x"),
                  progress=False)
     assert saved == [3]
+
+
+def test_a_zip_that_is_no_checkpoint_is_damaged_by_name(tmp_path):
+    import zipfile
+    with zipfile.ZipFile(tmp_path / "z.pt", "w") as z:
+        z.writestr("a", "b")
+    with pytest.raises(runner.DamagedCheckpoint, match=r"the file is damaged \(RuntimeError while reading it\)"):
+        RunFolder(tmp_path)._read_checkpoint(tmp_path / "z.pt")
+
+
+def test_a_half_written_header_and_a_long_half_row_are_cut_off(tmp_path):
+    folder = RunFolder(tmp_path)
+    path = tmp_path / runner.EPISODES
+    path.write_bytes(b"seed,epi")
+    folder._drop_unfinished_row()
+    assert path.read_bytes() == b""
+    path.write_bytes(b"seed,episode,ret\n0,1,1.5\n" + b"0,2," + b"1" * 100)  # a part row longer than 32 bytes
+    folder._drop_unfinished_row()
+    assert path.read_bytes() == b"seed,episode,ret\n0,1,1.5\n"
+
+
+def test_existing_refuses_a_folder_it_cannot_write(tmp_path, monkeypatch):
+    (tmp_path / runner.CONFIG).write_text("{}")
+    monkeypatch.setattr(runner.os, "access", lambda path, mode: False)
+    with pytest.raises(runner.RunError, match=f"^cannot write to {tmp_path}$"):
+        RunFolder.existing(tmp_path)
+
+
+def test_alive_sends_no_signal_and_counts_a_process_not_ours(monkeypatch):
+    import subprocess
+    import sys
+    import time
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        assert runner._alive(proc.pid)
+        time.sleep(0.1)
+        assert proc.poll() is None           # only asked (signal 0), not hung up
+    finally:
+        proc.kill()
+        proc.wait()
+
+    def not_ours(pid, sig):
+        raise PermissionError(errno.EPERM, "Operation not permitted")
+    monkeypatch.setattr(runner.os, "kill", not_ours)
+    assert runner._alive(12345)
+
+
+def test_resumable_config_names_both_versions_and_takes_a_config_without_them(tmp_path, capsys):
+    import torch
+    folder, config = recorded_run(tmp_path)
+    runner.resumable_config(folder)
+    assert f"{{'torch': ('0.0', '{torch.__version__}')}}" in capsys.readouterr().err
+    folder.write_json(runner.CONFIG, config)  # recorded without versions
+    assert runner.resumable_config(folder) == config and capsys.readouterr().err == ""
+
+
+def test_lengthen_edges_of_the_budget(tmp_path):
+    import re
+    folder, config = recorded_run(tmp_path, env_steps=100, episodes=100)
+    longer = runner.lengthen(folder, config, env_steps=150, episodes=120)  # both given: the episodes as given
+    assert (longer["run"]["env_steps"], longer["run"]["episodes"]) == (150, 120)
+    assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d", folder.read_json(runner.CONFIG)["lengthened"][0]["time"])
+    with pytest.raises(runner.RunError, match="--env-steps 1 is a smaller budget than the run's 150"):
+        runner.lengthen(folder, longer, env_steps=1)
+    folder, config = recorded_run(tmp_path / "b", env_steps=100, episodes=7)
+    longer = runner.lengthen(folder, config, env_steps=0)                # no budget: longer
+    assert (longer["run"]["env_steps"], longer["run"]["episodes"]) == (0, 7)
