@@ -719,3 +719,23 @@ def test_lengthen_edges_of_the_budget(tmp_path):
     folder, config = recorded_run(tmp_path / "b", env_steps=100, episodes=7)
     longer = runner.lengthen(folder, config, env_steps=0)                # no budget: longer
     assert (longer["run"]["env_steps"], longer["run"]["episodes"]) == (0, 7)
+
+
+def test_acquire_makes_the_folder_and_a_lock_file_others_can_read(tmp_path):
+    old = os.umask(0o022)
+    try:
+        folder = RunFolder(tmp_path / "a" / "b")
+        folder.acquire()
+        try:
+            assert (os.stat(folder.file(runner.LOCK)).st_mode & 0o777) == 0o644
+        finally:
+            folder.release()
+    finally:
+        os.umask(old)
+
+
+def test_default_folder_names_carry_the_time(tmp_path):
+    import re
+    folder = RunFolder.create(None, "sq", root=str(tmp_path))
+    folder.release()
+    assert re.fullmatch(r"sq-\d{8}-\d{6}", folder.path.name)
