@@ -25,6 +25,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -372,7 +373,6 @@ class RunFolder:
         try:
             state = torch.load(path, weights_only=True)
         except Exception as err:  # a damaged file, or one holding more than plain data
-            import pickle
             if isinstance(err, pickle.UnpicklingError) and zipfile.is_zipfile(path):  # not damage: refused, no
                 raise RunError(f"cannot read {path}: {damage(path, err)}") from None   # fallback works around it
             raise DamagedCheckpoint(f"cannot read {path}: {damage(path, err)}") from None
@@ -388,8 +388,6 @@ def damage(path: Path, err: Exception) -> str:
     """What is wrong with a checkpoint torch could not load, in our words: torch's own text is
     long (cut, it ends mid-sentence) and, for a file that is not plain data, advises loading
     with weights_only=False, which would run code from the file. torch writes zip archives."""
-    import pickle
-    import zipfile
     if not zipfile.is_zipfile(path):
         with open(path, "rb") as f:
             begins_as_zip = f.read(4) == b"PK\x03\x04"  # a zip's start without its end (its directory)
