@@ -173,7 +173,8 @@ def main(argv=None) -> int:
     p.add_argument("-k", dest="keyword", default=None, help="pytest -k expression on those tests")
     p.add_argument("--max-children", type=int, default=None, help="parallel mutants (default: the cores)")
     p.add_argument("--again", action="store_true",
-                   help="keep the last run's mutants; copy tests/ again and retest its survivors only")
+                   help="keep the last run's mutants; copy tests/ again and retest its survivors and the "
+                        "mutants it did not reach (a run stopped early) only")
     a = p.parse_args(argv)
     try:
         import mutmut as _  # noqa: F401
@@ -198,8 +199,8 @@ def main(argv=None) -> int:
             raise SystemExit("mutate: no earlier run in mutants/ to continue")
         shutil.rmtree(STAGE / "tests")
         shutil.copytree(ROOT / "tests", STAGE / "tests", ignore=shutil.ignore_patterns("__pycache__"))
-        again = [n for statuses in results().values() for n, s in statuses.items() if s in ("survived",)]
-        print(f"mutate: retesting {len(again)} survivors with the tests as they are now")
+        again = [n for statuses in results().values() for n, s in statuses.items() if s in ("survived", "not checked")]
+        print(f"mutate: retesting {len(again)} survivors and unchecked mutants with the tests as they are now")
         rc = mutmut("run", *extra, *again, env=env) if again else 0
     else:
         print(f"mutate: {', '.join(sources)} with {' '.join(tests + pytest_args)}")

@@ -365,3 +365,38 @@ def test_progress_counts_seed_episodes_or_with_a_budget_seed_steps(monkeypatch):
     Bar.made = []
     OnlineCollector(corridor(), Scripted(), 1, progress=False).run()
     assert Bar.made[0].kw["disable"] and Bar.made[0].updates == [1, 1]
+
+
+def test_counters_are_integer_tensors_before_and_after_a_run():
+    # float32 counters would silently lose counts past 2**24 env steps (a long budget), and a
+    # checkpoint's integers would be copied into floats
+    c = collector()
+    for _ in range(2):
+        for name in ("episode", "steps", "env_steps_done", "stopped_at"):
+            assert getattr(c, name).dtype == torch.long, name
+            assert c.state_dict()[name].dtype == torch.long, name
+        c.run()
+
+
+def test_a_fresh_collector_has_stopped_nothing():
+    c = collector()
+    assert c.first_stop is False and c.stopped_now is False
+
+
+class WithoutEpisodeInfo:
+    """Any TorchRL env: the corridor seen through a wrapper that has no ``episode_info``."""
+
+    def __init__(self, env):
+        self._env = env
+
+    def __getattr__(self, name):
+        if name == "episode_info":
+            raise AttributeError(name)
+        return getattr(self._env, name)
+
+
+def test_an_env_without_episode_info_gives_the_fixed_columns():
+    env = WithoutEpisodeInfo(corridor())
+    assert not hasattr(env, "episode_info")
+    df = OnlineCollector(env, Scripted(), 2, progress=False).run()
+    assert list(df.columns) == COLUMNS and plain(df) == BY_HAND
