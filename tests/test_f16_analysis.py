@@ -359,3 +359,60 @@ def test_the_report_section_against_gwh14_by_hand(tmp_path, monkeypatch):
         "- GWH14 (L_Q = 10): about -514 at first and -113 by episodes 900-1000. Ours: -200 in episodes 1-10 and "
         "episodes 900-1000 not reached in this run's 999 (not measured at this scale); 0 of 1 seeds reached a "
         "stable flight (GWH14: stable by about 1,000 episodes)."]
+
+
+# ------------------------------------------------------------ optimism (issue 28)
+def test_lqr_q_is_the_settings_reward_then_the_lqrs_discounted_by_hand():
+    """No noise, decisions of 5 steps, gamma 0.9 and tol 0.85 (a horizon of 2 decisions): Q of
+    each setting is its decision's reward plus 0.9 times the reward of the LQR's next decision
+    (the gain from scipy's Riccati solver, r = 0.1), at two states."""
+    from trl_dgpq.envs.f16.env import F16Config
+    cfg = F16Config(noise_v=0.0, noise_alpha=0.0, decision_steps=5, max_steps=40)
+    states = np.array([START, [-35.0, 2.0, 0.02, -0.01, 0.05]])
+    q = analysis.lqr_q(cfg, torch.tensor(states), 0.9, rollouts=2, r=0.1, tol=0.85)
+    k = lqr_gain_by_hand(0.25, r=0.1)
+    for i, x0 in enumerate(states):
+        for a, e in enumerate((-1.0, 0.0, 1.0)):
+            x1, r0 = decision_by_hand(x0, e, 5)
+            _, r1 = decision_by_hand(x1, float(quantise_by_hand(-k @ x1)) - 1.0, 5)
+            assert float(q[i, a]) == pytest.approx(r0 + 0.9 * r1, rel=1e-7), (i, a)  # RK4 by hand
+
+
+def test_visited_states_are_the_noise_free_flights_by_hand():
+    from trl_dgpq.envs.f16.env import F16Config
+    cfg = F16Config(noise_v=0.0, noise_alpha=0.0, decision_steps=5, max_steps=3)
+    k = lqr_gain_by_hand(0.25, r=0.1)
+    for policy, law in (("hold", lambda x: 0.0), ("lqr", lambda x: float(quantise_by_hand(-k @ x)) - 1.0)):
+        got = analysis.visited(cfg, policy, episodes=2).numpy()
+        x, want = START, []
+        for _ in range(3):
+            want.append(x)
+            x, _ = decision_by_hand(x, law(x), 5)
+        assert got.shape == (6, 5)
+        np.testing.assert_allclose(got, np.repeat(np.array(want), 2, axis=0), rtol=1e-8, atol=1e-10, err_msg=policy)
+
+
+def test_optimism_compares_qhat_with_the_lower_bound_per_seed(tmp_path, monkeypatch):
+    """A DGPQ run whose Q̂ is all V_max = 0 at some states: against a lower bound of -1 nothing is
+    below it; against +1 everything is, short by 1 where Q̂ is 0."""
+    from trl_dgpq.commands import train
+    out = tmp_path / "run"
+    assert train.main(["--env", "f16", "--agent", "dgpq", "--seeds", "2,5", "--episodes", "1", "--max-steps", "2",
+                       "--out", str(out), "--no-progress"]) == 0
+    for bound, share in ((-1e6, 0.0), (1e6, 1.0)):
+        monkeypatch.setattr(analysis, "lqr_q", lambda cfg, s, gamma, rollouts: torch.full((len(s), 3), bound))
+        df = analysis.optimism(out, "hold", episodes=3, rollouts=1)
+        assert df.seed.tolist() == [2, 5] and (df.L_Q == 5.0).all()
+        for n in ("up", "hold", "down"):
+            assert (df[f"below_{n}"] == share).all(), (bound, n)
+        assert all(sum(g) == 6 for g in df.greedy)           # 3 episodes x 2 decisions
+        assert df.q_start.tolist() == [[bound] * 3] * 2
+
+
+def test_optimism_refuses_a_run_without_qhat(tmp_path):
+    from trl_dgpq.commands import train
+    out = tmp_path / "run"
+    assert train.main(["--env", "f16", "--agent", "pd", "--seeds", "2", "--episodes", "1", "--max-steps", "2",
+                       "--out", str(out), "--no-progress"]) == 0
+    with pytest.raises(ValueError, match="not a DGPQ run"):
+        analysis.optimism(out)

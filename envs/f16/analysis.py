@@ -219,3 +219,103 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
     return (f"## Aircraft altitude hold (GWH14's second experiment) -- Figure 3\n\n{label}\n\n"
             + "\n".join(rows) + "\n\n" + "\n".join(sentences)
             + "\n\n![reward](f16/f16_reward.png) ![trace](f16/f16_trace.png)\n")
+
+
+# ------------------------------------------------------------ is Q̂ still optimistic? (issue 28)
+# DGPQ's guarantee rests on Q̂ staying above Q* (less ε): an action whose Q̂ falls below its
+# value is never tried again, since Q̂ only ever decreases. Q of "take a, then fly the quantised
+# LQR" is a lower bound on Q* (the LQR is one policy), so Q̂(s, a) below it by more than ε₁ is
+# optimism lost, measurably.
+def lqr_q(cfg, states, gamma: float, rollouts: int = 100, r: float = 0.1, seed: int = 0,
+          tol: float = 1e-3):
+    """(N, 3) Q of each elevator setting at each of ``states`` (N, 5) (the env's units), then
+    the quantised LQR (weight ``r``): the mean discounted reward of ``rollouts`` flights through
+    the env itself (its dynamics, noise and reward; the same noise for the three settings),
+    until γ^t < ``tol``. A flight that leaves the envelope earns nothing after its penalty."""
+    import math
+    from dataclasses import replace
+
+    import torch
+    from tensordict import TensorDict
+
+    from .baselines import LQRConfig, LQRPolicy
+    from .env import F16Env
+
+    horizon = max(1, math.ceil(math.log(tol) / math.log(gamma))) if gamma > 0 else 1
+    n, m = len(states), rollouts
+    seeds = list(range(seed, seed + n * m))      # the same streams for each setting: common noise
+    long = replace(cfg, max_steps=horizon)       # the leaving penalty counts the steps left
+    q = torch.zeros(n, 3, dtype=torch.float64)
+    for a in range(3):
+        env = F16Env(seeds, long)
+        env.reset()
+        env.state.copy_(torch.as_tensor(states, dtype=torch.float64).repeat_interleave(m, 0))
+        lqr = LQRPolicy.make(LQRConfig(r=r), env.info, seeds)
+        action = torch.full((n * m,), a, dtype=torch.long)
+        total = torch.zeros(n * m, dtype=torch.float64)
+        alive = torch.ones(n * m, dtype=torch.bool)
+        for t in range(horizon):
+            nxt = env.step(TensorDict(action=action, batch_size=[n * m]))["next"]
+            total += alive * gamma ** t * nxt["reward"].reshape(-1)
+            alive &= ~nxt["terminated"].reshape(-1)
+            action = lqr.act(nxt)
+        q[:, a] = total.view(n, m).mean(1)
+    return q
+
+
+def visited(cfg, policy: str, episodes: int, seed: int = 0):
+    """The states (episodes * max_steps, 5) that ``policy`` ("hold" or "lqr") flies through
+    from the env's start, one episode per seed row (each seed's own noise)."""
+    import torch
+    from tensordict import TensorDict
+
+    from .baselines import LQRConfig, LQRPolicy
+    from .env import F16Env
+
+    seeds = list(range(seed, seed + episodes))
+    env = F16Env(seeds, cfg)
+    td = env.reset()
+    lqr = LQRPolicy.make(LQRConfig(r=0.1), env.info, seeds)
+    out = []
+    for _ in range(cfg.max_steps):
+        out.append(td["state"].clone())
+        action = lqr.act(td) if policy == "lqr" else torch.ones(episodes, dtype=torch.long)
+        td = env.step(TensorDict(action=action, state=td["state"], batch_size=[episodes]))["next"]
+    return torch.cat(out)
+
+
+def optimism(folder: Path, on: str = "hold", episodes: int = 8, rollouts: int = 100) -> pd.DataFrame:
+    """Per seed of the DGPQ run in ``folder``: at the states ``on`` ("hold" or "lqr") flies
+    through (seeds 9000+, episodes the run never saw), the share of states where Q̂(s, a) is
+    below Q of a-then-LQR less ε₁ (optimism lost), the median shortfall there, Q̂'s greedy
+    action against the LQR-continuation's best (counts of nose-up, hold, nose-down), and Q̂
+    and Q at the start state."""
+    import torch
+
+    from trl_dgpq.collectors.evaluate import jobs, restore
+    config, env, agent, _ = restore(jobs(folder)[0])
+    if not hasattr(agent, "qhat"):
+        raise ValueError(f"{folder} is not a DGPQ run (its agent has no Q̂)")
+    states = visited(env.cfg, on, episodes, seed=9000)
+    q = lqr_q(env.cfg, states, agent.cfg.gamma, rollouts)
+    f = agent.features(states / env.scale)
+    qhat = torch.stack([agent.qhat(x[None].expand(agent.S, -1)) for x in f])    # (N, S, A)
+    rows = []
+    for i, seed in enumerate(config["run"]["seeds"]):
+        below = qhat[:, i] < q - agent.cfg.eps1
+        short = (q - qhat[:, i])[below]
+        rows.append(dict(seed=seed, L_Q=agent.cfg.lipschitz,
+                         **{f"below_{n}": float(below[:, a].float().mean()) for a, n in enumerate(("up", "hold", "down"))},
+                         median_shortfall=float(short.median()) if len(short) else 0.0,
+                         greedy=torch.bincount(qhat[:, i].argmax(1), minlength=3).tolist(),
+                         lqr_best=torch.bincount(q.argmax(1), minlength=3).tolist(),
+                         qhat_start=[round(v, 1) for v in qhat[0, i].tolist()],
+                         q_start=[round(v, 1) for v in q[0].tolist()],
+                         qhat_pairs=int(agent.qhat.size()[i])))
+    return pd.DataFrame(rows)
+
+
+if __name__ == "__main__":   # python -m trl_dgpq.envs.f16.analysis RUN [hold|lqr]
+    import sys
+    pd.set_option("display.width", 250)
+    print(optimism(Path(sys.argv[1]), *sys.argv[2:3]).to_string(index=False))
