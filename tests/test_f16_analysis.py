@@ -416,3 +416,14 @@ def test_optimism_refuses_a_run_without_qhat(tmp_path):
                        "--out", str(out), "--no-progress"]) == 0
     with pytest.raises(ValueError, match="not a DGPQ run"):
         analysis.optimism(out)
+
+
+def test_slopes_are_the_quantiles_of_q_differences_over_l1_distances():
+    """Three states on a line at 0, 1 and 3 with Q of action 0 at 0, 2 and 3: the pair slopes
+    are 2, 1 and 1/2 (median 1, max 2); action 1 flat (0); pairs closer than 0.05 left out."""
+    f = torch.tensor([[0.0, 0.0], [1.0, 0.0], [2.0, 1.0], [2.0, 1.01]], dtype=torch.float64)
+    q = torch.tensor([[0.0, 5.0, 0.0], [2.0, 5.0, 0.0], [3.0, 5.0, 9.0], [3.0, 5.0, 0.0]], dtype=torch.float64)
+    got = analysis.slopes(f[:3], q[:3])
+    assert got.loc["up", "max"] == pytest.approx(2.0) and got.loc["up", "median"] == pytest.approx(1.0)
+    assert got.loc["hold", "max"] == 0.0
+    assert analysis.slopes(f, q).loc["down", "max"] == pytest.approx(9.0 / 2.0)   # 0.01 apart: left out

@@ -299,6 +299,8 @@ def optimism(folder: Path, on: str = "hold", episodes: int = 8, rollouts: int = 
     states = visited(env.cfg, on, episodes, seed=9000)
     q = lqr_q(env.cfg, states, agent.cfg.gamma, rollouts)
     f = agent.features(states / env.scale)
+    print(f"Q of a-then-LQR along {on}'s flights: its slope per unit of the run's metric\n"
+          f"{slopes(f, q).round(1).to_string()}")
     qhat = torch.stack([agent.qhat(x[None].expand(agent.S, -1)) for x in f])    # (N, S, A)
     rows = []
     for i, seed in enumerate(config["run"]["seeds"]):
@@ -313,6 +315,21 @@ def optimism(folder: Path, on: str = "hold", episodes: int = 8, rollouts: int = 
                          q_start=[round(v, 1) for v in q[0].tolist()],
                          qhat_pairs=int(agent.qhat.size()[i])))
     return pd.DataFrame(rows)
+
+
+def slopes(features, q, min_distance: float = 0.05) -> pd.DataFrame:
+    """How steep Q is in DGPQ's metric: for each action, quantiles over pairs of states (their
+    ``features``, L1 distance above ``min_distance``) of |Q(s, a) - Q(s', a)| / d(s, s'). Q̂ stays
+    an upper envelope only while L_Q is at least the largest of these."""
+    import torch
+    d = torch.cdist(features, features, p=1)
+    far = d > min_distance
+    rows = {}
+    for a, name in enumerate(("up", "hold", "down")):
+        slope = ((q[:, a, None] - q[None, :, a]).abs()[far] / d[far])
+        rows[name] = {k: float(slope.quantile(v)) if k != "max" else float(slope.max())
+                      for k, v in (("median", 0.5), ("90%", 0.9), ("99%", 0.99), ("max", 1.0))}
+    return pd.DataFrame(rows).T
 
 
 if __name__ == "__main__":   # python -m trl_dgpq.envs.f16.analysis RUN [hold|lqr]
