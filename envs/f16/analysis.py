@@ -288,7 +288,8 @@ def optimism(folder: Path, on: str = "hold", episodes: int = 8, rollouts: int = 
     """Per seed of the DGPQ run in ``folder``: at the states ``on`` ("hold" or "lqr") flies
     through (seeds 9000+, episodes the run never saw), the share of states where Q̂(s, a) is
     below Q of a-then-LQR less ε₁ (optimism lost), the median shortfall there, Q̂'s greedy
-    action against the LQR-continuation's best (counts of nose-up, hold, nose-down), and Q̂
+    action against the LQR-continuation's best (counts of nose-up, hold, nose-down; ``pulse_gap``:
+    the median margin by which a pulse is best where it is), and Q̂
     and Q at the start state."""
     import torch
 
@@ -302,6 +303,9 @@ def optimism(folder: Path, on: str = "hold", episodes: int = 8, rollouts: int = 
     print(f"Q of a-then-LQR along {on}'s flights: its slope per unit of the run's metric\n"
           f"{slopes(f, q).round(1).to_string()}")
     qhat = torch.stack([agent.qhat(x[None].expand(agent.S, -1)) for x in f])    # (N, S, A)
+    top = q.sort(1, descending=True).values
+    pulse = q.argmax(1) != 1
+    gap = float((top[:, 0] - top[:, 1])[pulse].median()) if pulse.any() else float("nan")
     rows = []
     for i, seed in enumerate(config["run"]["seeds"]):
         below = qhat[:, i] < q - agent.cfg.eps1
@@ -310,7 +314,7 @@ def optimism(folder: Path, on: str = "hold", episodes: int = 8, rollouts: int = 
                          **{f"below_{n}": float(below[:, a].float().mean()) for a, n in enumerate(("up", "hold", "down"))},
                          median_shortfall=float(short.median()) if len(short) else 0.0,
                          greedy=torch.bincount(qhat[:, i].argmax(1), minlength=3).tolist(),
-                         lqr_best=torch.bincount(q.argmax(1), minlength=3).tolist(),
+                         lqr_best=torch.bincount(q.argmax(1), minlength=3).tolist(), pulse_gap=gap,
                          qhat_start=[round(v, 1) for v in qhat[0, i].tolist()],
                          q_start=[round(v, 1) for v in q[0].tolist()],
                          qhat_pairs=int(agent.qhat.size()[i])))
