@@ -292,11 +292,17 @@ def test_the_model_is_float64_as_published():
 @pytest.mark.parametrize("start, inside", [(dict(h0=500.0, h_max=400.0), dict(h0=399.0, h_max=400.0)),
                                            (dict(h0=-400.0, h_max=400.0), dict(h0=-399.0, h_max=400.0)),
                                            (dict(pitch0=0.2, attitude_max=0.2), dict(pitch0=0.19, attitude_max=0.2)),
-                                           (dict(pitch0=-0.25, attitude_max=0.2), dict(pitch0=-0.19, attitude_max=0.2))])
+                                           (dict(pitch0=-0.25, attitude_max=0.2), dict(pitch0=-0.19, attitude_max=0.2)),
+                                           (dict(h0=-300.0, h0_spread=100.0, h_max=400.0),
+                                            dict(h0=-300.0, h0_spread=99.0, h_max=400.0)),
+                                           (dict(pitch0=0.1, pitch0_spread=0.1, attitude_max=0.2),
+                                            dict(pitch0=0.1, pitch0_spread=0.09, attitude_max=0.2))])
 def test_a_start_on_or_outside_the_envelope_is_refused_in_our_words(start, inside):
-    """Each setting within its own range, the start on or beyond the envelope's edge (h0 alone,
-    or pitch0 alone): cross_check refuses it, naming both; just inside is accepted."""
-    with pytest.raises(ValueError, match=r"the start \(h0 .*, pitch0 .*\) must be inside the envelope \(h_max "):
+    """Each setting within its own range, a start on or beyond the envelope's edge (h0 alone,
+    pitch0 alone, or with their spreads): cross_check refuses it, naming both; just inside is
+    accepted."""
+    with pytest.raises(ValueError, match=r"every start \(h0 .* \+- .*, pitch0 .* \+- .*\) must be inside the "
+                                         r"envelope \(h_max "):
         F16Env([0], **start)
     F16Env([0], **inside)
 
@@ -399,3 +405,64 @@ def test_lqr_policy_is_the_riccati_gain_of_one_decision():
     assert policy.act({"state": x}).tolist() == [int(np.clip(np.round(c / 2.0), -1, 1)) + 1 for c in command]
     np.testing.assert_allclose(LQRPolicy.make(LQRConfig(), F16Env([0]).info, [0]).gain.numpy(),
                                lqr_gain_by_hand(0.05, r=0.3), rtol=4e-10)
+
+
+# ------------------------------------------------------------ the start spread (issue 28)
+from tensordict import TensorDict  # noqa: E402
+
+
+def reset_rows(env, rows):
+    mask = torch.zeros(env.num_seeds, 1, dtype=torch.bool)
+    mask[list(rows)] = True
+    return env.reset(TensorDict(_reset=mask, batch_size=env.batch_size))
+
+
+def starts(env, episodes, steps=(3,)):
+    """The start state of each of ``episodes`` episodes per seed row, each episode ``steps[i %
+    len]`` decisions long (ended by reset, as the collector's step_and_maybe_reset does)."""
+    out = []
+    for k in range(episodes):
+        td = env.reset() if k == 0 else reset_rows(env, range(env.num_seeds))
+        out.append(td["state"].clone())
+        for _ in range(steps[k % len(steps)]):
+            td = env.step(td.set("action", torch.ones(env.num_seeds, dtype=torch.long)))["next"]
+    return torch.stack(out, 1)  # (S, episodes, 5)
+
+
+def test_the_start_spread_draws_h_and_pitch_uniformly_around_h0_and_pitch0():
+    env = F16Env(list(range(40)), h0=20.0, h0_spread=50.0, pitch0=0.01, pitch0_spread=0.02, noise_v=0.0,
+                 noise_alpha=0.0)
+    x = starts(env, 5).reshape(-1, 5)
+    assert ((x[:, 0] - 20.0).abs() <= 50.0).all() and ((x[:, 2] - 0.01).abs() <= 0.02).all()
+    assert torch.equal(x[:, 2], x[:, 3]) and (x[:, [1, 4]] == 0).all()   # alpha = theta; V_T, q at trim
+    assert x[:, 0].std() == pytest.approx(100.0 / 12 ** 0.5, rel=0.15)   # uniform on a width of 100
+    assert x[:, 0].unique().numel() == 200                                # a new draw every episode
+    assert (x[:, 0] > 20.0).float().mean() == pytest.approx(0.5, abs=0.1)
+
+
+def test_without_a_spread_every_episode_starts_at_h0_and_pitch0():
+    x = starts(F16Env([0, 1]), 3)
+    assert (x == torch.tensor([20.0, 0.0, 0.01, 0.01, 0.0], dtype=torch.float64)).all()
+
+
+def test_a_seeds_starts_depend_neither_on_its_batch_nor_on_its_episodes_lengths():
+    kw = dict(h0_spread=50.0, pitch0_spread=0.02)
+    alone = starts(F16Env([3], **kw), 4, steps=(2,))[0]
+    assert torch.equal(alone, starts(F16Env([1, 3, 9], **kw), 4, steps=(5, 1))[1])
+    env = F16Env([1, 3, 9], **kw)                      # the others start new episodes, seed 3 does not
+    first = env.reset()["state"][1].clone()
+    for _ in range(3):
+        reset_rows(env, [0, 2])
+    assert torch.equal(first, alone[0]) and torch.equal(reset_rows(env, [1])["state"][1], alone[1])
+    assert not torch.equal(alone, starts(F16Env([4], **kw), 4)[0])          # another seed, other starts
+
+
+def test_the_start_spread_continues_exactly_from_a_saved_state_and_an_older_state_loads():
+    kw = dict(h0_spread=50.0, pitch0_spread=0.02)
+    a = F16Env([2, 5], **kw)
+    starts(a, 2)
+    b = F16Env([2, 5], **kw)
+    b.load_state_dict(a.state_dict())
+    assert torch.equal(starts(a, 2), starts(b, 2))
+    old = {k: v for k, v in F16Env([2, 5]).state_dict().items() if k not in ("episode", "start_rng")}
+    F16Env([2, 5]).load_state_dict(old)        # a checkpoint from before the spread existed

@@ -22,6 +22,10 @@ What GWH14 do not state, chosen here (and why):
   (``baselines.py``), each with about three elevator steps per episode. (An h0 of
   100 ft was tried first: every controller then pays ~100 for the climb it cannot
   make faster, and PD and LQR scored −139 and −136, nothing like GWH14's −47.);
+- the start spread (issue 28): ``h0_spread`` and ``pitch0_spread`` > 0 draw each episode's
+  start uniformly around h0 and pitch0 (α = θ), from a stream keyed by the seed's episode,
+  so that an episode teaches more than one trajectory; 0, the default, keeps issue 19's
+  single start;
 - the envelope: the episode terminates when |h − h_d| > ``h_max`` or |α|, |θ| >
   ``attitude_max`` or |q| > ``rate_max``. Leaving it costs what the remaining steps would
   at the envelope's edge (|h − h_d| = h_max, |ḣ| = 0, no elevator): ending early is
@@ -42,6 +46,7 @@ import torch
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
 from trl_dgpq.config import setting
+from trl_dgpq.rng import stream_id
 
 from ..base import SeedBatchedEnv
 from .dynamics import climb_rate, discretise, rows_times
@@ -56,6 +61,10 @@ class F16Config:
     elevator_deg: float = setting(1.0, "elevator deflection of actions -1 / +1, degrees", within="(0, 25]")
     h0: float = setting(20.0, "altitude error h - h_d at the start, ft", within="[-1000, 1000]")
     pitch0: float = setting(0.01, "alpha and theta at the start, rad", within="[-0.3, 0.3]")
+    h0_spread: float = setting(0.0, "the start's altitude error is h0 plus a uniform draw in +-h0_spread, ft "
+                                    "(0: every episode starts at h0)", within="[0, 1000)")
+    pitch0_spread: float = setting(0.0, "alpha and theta at the start are pitch0 plus one uniform draw in "
+                                        "+-pitch0_spread, rad", within="[0, 0.3]")
     noise_v: float = setting(0.5, "s.d. of the airspeed noise per step, ft/s", within="[0, inf)")
     noise_alpha: float = setting(5e-4, "s.d. of the angle-of-attack noise per step, rad", within="[0, inf)")
     h_max: float = setting(1000.0, "envelope: largest |h - h_d|, ft", within="(0, inf)")
@@ -65,9 +74,11 @@ class F16Config:
     max_steps: int = setting(200, "decisions per episode (truncation)", within="[1, inf)")
 
     def cross_check(self) -> None:
-        if abs(self.h0) >= self.h_max or abs(self.pitch0) >= self.attitude_max:
-            raise ValueError(f"the start (h0 {self.h0}, pitch0 {self.pitch0}) must be inside the envelope "
-                             f"(h_max {self.h_max}, attitude_max {self.attitude_max})")
+        if (abs(self.h0) + self.h0_spread >= self.h_max
+                or abs(self.pitch0) + self.pitch0_spread >= self.attitude_max):
+            raise ValueError(f"every start (h0 {self.h0} +- {self.h0_spread}, pitch0 {self.pitch0} +- "
+                             f"{self.pitch0_spread}) must be inside the envelope (h_max {self.h_max}, "
+                             f"attitude_max {self.attitude_max})")
 
 
 class F16Env(SeedBatchedEnv):
@@ -75,13 +86,17 @@ class F16Env(SeedBatchedEnv):
 
     Config = F16Config
     action_names = ("nose-up", "hold", "nose-down")
-    _state_names = ("state",)
+    _state_names = ("state", "episode")
+    # the start's draws, keyed by the seed's episode (uniform_at): a seed's starts never depend
+    # on its batch or on how many steps its episodes took
+    _streams = (("start_rng", stream_id("f16.start")),)
 
     def __init__(self, seeds=(0,), cfg: F16Config | None = None, device="cpu", **overrides):
         super().__init__(seeds, cfg, device, **overrides)
         ad, bd = discretise(self.cfg.dt)
         self.ad, self.bd = ad.to(self.device), bd.to(self.device)
         self.state = torch.zeros(self.num_seeds, 5, dtype=torch.float64, device=self.device)
+        self.episode = torch.full((self.num_seeds,), -1, dtype=torch.long, device=self.device)  # current one
         c = self.cfg
         self.scale = torch.tensor([c.h_max, c.vt_scale, c.attitude_max, c.attitude_max, c.rate_max],
                                   dtype=torch.float64, device=self.device)
@@ -100,9 +115,18 @@ class F16Env(SeedBatchedEnv):
 
     def _initial(self, mask):
         c = self.cfg
-        start = torch.tensor([c.h0, 0.0, c.pitch0, c.pitch0, 0.0], dtype=torch.float64, device=self.device)
-        self.state[mask] = start
+        self.episode += mask
+        u = 2.0 * self.start_rng.uniform_at(self.episode, 2) - 1.0                     # (S, 2) in [-1, 1)
+        h, pitch = c.h0 + c.h0_spread * u[:, 0], c.pitch0 + c.pitch0_spread * u[:, 1]
+        zero = torch.zeros_like(h)
+        start = torch.stack([h, zero, pitch, pitch, zero], -1)
+        self.state[mask] = start[mask]
         return self._observe()
+
+    def load_state_dict(self, state: dict, strict: bool = True) -> None:
+        if "episode" not in state:  # a checkpoint from before the start spread: its starts drew nothing
+            state = {**state, "episode": torch.zeros_like(self.episode)}
+        super().load_state_dict(state, strict)
 
     def elevator(self, action: torch.Tensor) -> torch.Tensor:
         """Actions 0, 1, 2 as elevator -1, 0, +1."""
