@@ -739,3 +739,53 @@ def test_default_folder_names_carry_the_time(tmp_path):
     folder = RunFolder.create(None, "sq", root=str(tmp_path))
     folder.release()
     assert re.fullmatch(r"sq-\d{8}-\d{6}", folder.path.name)
+
+
+# ------------------------------------------------------------ provenance
+def test_provenance_names_each_version_as_its_library_reports_it():
+    import platform
+
+    import numpy
+    import pandas
+    import tensordict
+    import torch
+    import torchrl
+    assert runner.provenance()["versions"] == dict(
+        python=platform.python_version(), torch=torch.__version__, torchrl=torchrl.__version__,
+        tensordict=tensordict.__version__, numpy=numpy.__version__, pandas=pandas.__version__)
+
+
+def git_repo(path):
+    """A git repository at ``path`` with one commit of tracked.txt; its commit id."""
+    import subprocess
+    path.mkdir(parents=True)
+    g = lambda *a: subprocess.run(["git", "-C", str(path), *a], check=True, capture_output=True,  # noqa: E731
+                                  text=True).stdout.strip()
+    g("init", "-q")
+    (path / "tracked.txt").write_text("a\n")
+    g("add", "tracked.txt")
+    g("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "-m", "one")
+    return g("rev-parse", "HEAD")
+
+
+def test_provenance_gives_the_commit_and_whether_tracked_files_changed(tmp_path, monkeypatch):
+    """The checkout is the folder above the package: runner.py's grandparent. A file git does not
+    track leaves it clean; a changed tracked file makes it dirty."""
+    repo = tmp_path / "repo"
+    commit = git_repo(repo)
+    (repo / "pkg").mkdir()
+    monkeypatch.setattr(runner, "__file__", str(repo / "pkg" / "runner.py"))
+    (repo / "untracked.txt").write_text("new\n")
+    assert runner.provenance()["git"] == dict(commit=commit, dirty=False)
+    (repo / "tracked.txt").write_text("changed\n")
+    assert runner.provenance()["git"] == dict(commit=commit, dirty=True)
+
+
+def test_provenance_outside_a_git_checkout_has_no_commit(tmp_path, monkeypatch):
+    (tmp_path / "installed" / "pkg").mkdir(parents=True)
+    monkeypatch.setattr(runner, "__file__", str(tmp_path / "installed" / "pkg" / "runner.py"))
+    monkeypatch.setenv("GIT_CEILING_DIRECTORIES", str(tmp_path))   # git must not find a repository above
+    got = runner.provenance()
+    assert got["git"] == dict(commit=None, dirty=None) and got["versions"]["torch"]
+    monkeypatch.setenv("PATH", str(tmp_path / "no-git-here"))         # no git at all: the same
+    assert runner.provenance()["git"] == dict(commit=None, dirty=None)
