@@ -241,3 +241,18 @@ def test_cost_figure_keeps_every_block_mean_on_its_axis_and_legends_off_the_curv
         assert all(ax.get_legend() is None for ax in drawn.axes) and drawn.legends
         legend = drawn.legends[0].get_window_extent()
         assert not any(legend.overlaps(ax.get_window_extent()) for ax in drawn.axes)
+
+
+def test_drift_is_the_paired_cost_ratio_per_block_by_hand():
+    """3 blocks of 2 episodes, one seed: costs 4, 4 | 3, 3 | 6, 2 against an optimum of 2 each
+    (and an extra pair the learner lacks): ratios 2, 1.5, 2; the last 2 episodes 8/4 = 2; after
+    the first block the worst over the best is 2 / 1.5."""
+    import pandas as pd
+    from trl_dgpq.envs.liquidation.analysis import drift
+    df = pd.DataFrame(dict(seed=0, episode=range(1, 7), ac_cost=[4.0, 4.0, 3.0, 3.0, 6.0, 2.0]))
+    ref = pd.DataFrame(dict(seed=0, episode=range(1, 8), ac_cost=[2.0] * 6 + [100.0]))
+    got = drift(df, ref, block=2, settle=2, last=2)
+    assert got["blocks"] == pytest.approx([2.0, 1.5, 2.0]) and got["last"] == pytest.approx(2.0)
+    assert got["worst_over_best"] == pytest.approx(2.0 / 1.5)
+    ref.loc[ref.episode == 3, "ac_cost"] = 4.0                  # pairs, not means of separate sets
+    assert drift(df, ref, block=2, settle=2, last=2)["blocks"][1] == pytest.approx(6.0 / 6.0)

@@ -254,3 +254,26 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
             + "\n\n![cost](liquidation/liquidation_cost.png) ![time](liquidation/liquidation_time.png)"
             + (" ![holdings](liquidation/holdings.png)" if (out / "liquidation" / "holdings.png").is_file() else "")
             + "\n")
+
+
+# ------------------------------------------------------------ drift (issue 28)
+def drift(df, ref, block: int = 500, settle: int = 1000, last: int = 1000) -> dict:
+    """How a learner's cost moves over a long run: ac_cost divided by ``ref``'s (the optimum's)
+    on the same (seed, episode) pairs, per block of ``block`` episodes; over the ``last``
+    episodes; and the worst block after ``settle`` over the best one (the goal of issue 28:
+    within 1.02, and the last 1,000 at most 1.10)."""
+    E = int(df.episode.max())
+    blocks = [paired_ratios(df[df.episode.between(lo + 1, lo + block)], ref, ["ac_cost"])[0]
+              for lo in range(0, E, block)]
+    later = [r for i, r in enumerate(blocks) if i * block >= settle]
+    return dict(blocks=blocks, last=paired_ratios(df[df.episode > E - last], ref, ["ac_cost"])[0],
+                worst_over_best=max(later) / min(later) if later else float("nan"))
+
+
+if __name__ == "__main__":   # python -m trl_dgpq.envs.liquidation.analysis RUN OPTIMUM_RUN
+    import sys
+
+    import pandas as pd
+    got = drift(*(pd.read_csv(Path(p) / "episodes.csv") for p in sys.argv[1:3]))
+    print("ac_cost / optimum per 500 episodes:", " ".join(f"{r:.2f}" for r in got["blocks"]))
+    print(f"last 1,000: {got['last']:.3f}; worst / best after 1,000: {got['worst_over_best']:.3f}")
