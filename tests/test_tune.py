@@ -298,3 +298,41 @@ def test_the_best_trial_round_trips_as_the_tuned_preset(tmp_path, monkeypatch):
     assert provenance["trial"] == 1 and provenance["value"] == 20.0 and provenance["seeds"] == list(TUNING_SEEDS)
     assert provenance["base_preset"] == "noisy" and provenance["study"] == f"sqlite:///{out.resolve() / 'study.db'}"
     assert {"date", "commit", "budget", "trials", "objective"} <= set(provenance)
+
+
+# ---------------------------------------------------------------- --search: ranges for another scale
+def test_a_search_range_is_name_low_high_log_uniform():
+    from trl_dgpq.tuning import parse_range, with_ranges
+    assert parse_range(" eps1=0.1:3") == ("eps1", LogUniform(0.1, 3.0))
+    for bad, says in [("eps1", "NAME=LOW:HIGH"), ("eps1=0.1", "NAME=LOW:HIGH"), ("=1:2", "NAME=LOW:HIGH"),
+                      ("eps1=a:3", "NAME=LOW:HIGH"), ("eps1=3:1", "0 < LOW < HIGH"), ("eps1=0:1", "0 < LOW < HIGH")]:
+        with pytest.raises(ValueError, match=says):
+            parse_range(bad)
+    space = {"eps1": LogUniform(1e-4, 0.1), "lipschitz": LogUniform(0.1, 100.0)}
+    assert with_ranges(space, ["eps1=0.5:2"]) == {"eps1": LogUniform(0.5, 2.0), "lipschitz": LogUniform(0.1, 100.0)}
+    with pytest.raises(ValueError, match=r"gamma is not in the agent's search space \(eps1, lipschitz\)"):
+        with_ranges(space, ["gamma=0.5:0.9"])
+
+
+def test_a_study_searches_the_ranges_given_and_keeps_them(tmp_path, capsys, monkeypatch):
+    out = str(tmp_path / "study")
+    args = [*TINY, "--episodes", "2", "--out", out, "--search", "lengthscale=5:6,eps1=0.5:0.6"]
+    assert tune.main([*args, "--trials", "2"]) == 0
+    for t in trials_of(out):
+        assert 5 <= t.params["lengthscale"] <= 6 and 0.5 <= t.params["eps1"] <= 0.6
+        assert 0.1 <= t.params["lipschitz"] <= 100.0                        # the agent's own range
+    with pytest.raises(SystemExit) as exc:                                   # another range: another study
+        tune.main(["--out", out, "--trials", "3", "--search", "lengthscale=1:2"])
+    assert exc.value.code == 2 and "keeps its search" in capsys.readouterr().err
+    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+    assert tune.main(["--out", out, "--trials", "2", "--write-preset"]) == 0
+    provenance = json.loads((tmp_path / "tuned.json").read_text())["square"]["dgpq"]["tuned"]["provenance"]
+    assert provenance["search"] == ["lengthscale=5:6", "eps1=0.5:0.6"]
+
+
+def test_a_search_range_outside_the_space_is_refused_before_any_trial(tmp_path, capsys):
+    out = tmp_path / "study"
+    with pytest.raises(SystemExit) as exc:
+        tune.main([*TINY, "--out", str(out), "--trials", "1", "--search", "gamma=0.5:0.9"])
+    assert exc.value.code == 2 and "gamma is not in the agent's search space" in capsys.readouterr().err
+    assert not out.exists()

@@ -44,7 +44,7 @@ from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import classes, resolve_config, split_overrides
 from trl_dgpq.config import find_leaf, from_dict, setting, to_dict
 from trl_dgpq.presets import preset_overrides, tuned_name, write_tuned
-from trl_dgpq.tuning import TUNING_SEEDS, check_tuning_seeds, search_space, suggest
+from trl_dgpq.tuning import TUNING_SEEDS, check_tuning_seeds, parse_range, search_space, suggest, with_ranges
 
 HOST = socket.gethostname()
 KEEP = (runner.CONFIG, runner.STATUS, runner.EPISODES)  # what an ended trial's folder keeps
@@ -70,12 +70,17 @@ class TuneConfig:
                                        "'measure', the measure at the budget even where there is a threshold (a "
                                        "threshold few trials meet scores them all alike: the budget)",
                              choices=("report", "measure"))
+    search: Tuple[str, ...] = setting((), "ranges that replace the agent's own, NAME=LOW:HIGH (log-uniform), comma-"
+                                          "separated, e.g. lengthscale=1:30,eps1=0.1:3: for a domain whose metric "
+                                          "or reward has another scale than the agent's search space assumes")
 
-    FIXED = ("sampler_seed", "stages", "prune_after", "objective")  # kept by the study from its first run
+    FIXED = ("sampler_seed", "stages", "prune_after", "objective", "search")  # kept by the study from its first run
 
     def cross_check(self) -> None:
         if list(self.stages) != sorted(set(self.stages)) or self.stages[-1] != 1:
             raise ValueError(f"stages must increase and end at 1, got {list(self.stages)}")
+        for text in self.search:
+            parse_range(text)
 
 
 class Stopped(Exception):
@@ -169,7 +174,8 @@ class Study:
         self.objective = objective(self.config["run"]["env"], self.tune.objective)
         agent_cls = classes(self.config["run"])[1]
         given = split_overrides(self.given_agent_env(), *classes(self.config["run"]))
-        self.space = {k: r for k, r in search_space(agent_cls).items() if find_leaf(agent_cls.Config, k).key
+        space = with_ranges(search_space(agent_cls), self.tune.search)
+        self.space = {k: r for k, r in space.items() if find_leaf(agent_cls.Config, k).key
                       not in given["agent"]}  # a setting given on the command line is kept, not searched
         if not self.space:
             raise ValueError("every setting of the search space is given on the command line: nothing to tune")
@@ -444,7 +450,8 @@ class Study:
             study=self.url, study_name=self.name, trial=best.number, trials=sum(map(len, ended.values())),
             objective=self.objective.name, direction=self.objective.direction, value=best.value,
             base_preset=run["preset"], budget=dict(episodes=run["episodes"], env_steps=run["env_steps"]),
-            seeds=run["seeds"], date=time.strftime("%Y-%m-%d %H:%M:%S"), commit=provenance()["git"]["commit"]))
+            seeds=run["seeds"], date=time.strftime("%Y-%m-%d %H:%M:%S"), commit=provenance()["git"]["commit"],
+            **({"search": list(self.tune.search)} if self.tune.search else {})))
 
     def value_of(self, section: str, key: str):
         """A given setting's value as the study's config resolved it."""

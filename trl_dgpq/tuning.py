@@ -120,6 +120,34 @@ def search_space(agent_cls) -> dict:
     return space
 
 
+def parse_range(text: str) -> Tuple[str, LogUniform]:
+    """``"lengthscale=1:30"`` -> ("lengthscale", LogUniform(1, 30)); ValueError (one line) otherwise."""
+    name, eq, rest = str(text).partition("=")
+    low, colon, high = rest.partition(":")
+    try:
+        lo, hi = float(low), float(high)
+    except ValueError:
+        lo = hi = None
+    if not (eq and colon and name.strip()) or lo is None:
+        raise ValueError(f"a search range is NAME=LOW:HIGH, e.g. lengthscale=1:30, got {text!r}")
+    if not 0 < lo < hi:
+        raise ValueError(f"search range {text!r}: need 0 < LOW < HIGH (it is searched log-uniformly)")
+    return name.strip(), LogUniform(lo, hi)
+
+
+def with_ranges(space: dict, ranges) -> dict:
+    """``space`` with the entries named in ``ranges`` ("NAME=LOW:HIGH" each) replaced; a name the
+    space does not search is refused, naming those it does."""
+    out = dict(space)
+    for text in ranges:
+        name, r = parse_range(text)
+        if name not in space:
+            raise ValueError(f"search range {text!r}: {name} is not in the agent's search space "
+                             f"({', '.join(space)})")
+        out[name] = r
+    return out
+
+
 def suggest(trial, space: dict, budget: int) -> dict:
     """{setting: value} drawn by ``trial`` from ``space``; ``budget``: env steps per seed (0 if
     the run is budgeted in episodes)."""
