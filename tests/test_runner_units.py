@@ -789,3 +789,74 @@ def test_provenance_outside_a_git_checkout_has_no_commit(tmp_path, monkeypatch):
     assert got["git"] == dict(commit=None, dirty=None) and got["versions"]["torch"]
     monkeypatch.setenv("PATH", str(tmp_path / "no-git-here"))         # no git at all: the same
     assert runner.provenance()["git"] == dict(commit=None, dirty=None)
+
+
+# ------------------------------------------------------------ checkpoints in a run, status while it runs
+def test_checkpoints_fall_at_each_multiple_of_checkpoint_every_times_the_seeds(tmp_path, monkeypatch):
+    """5 seeds on the slippery corridor (episodes of random lengths, so seeds finish them out of
+    step and the count can jump past a multiple): a checkpoint at the first batched step where the
+    episodes done reach each next multiple of 5, worked out from the rows' own step counts, then
+    one at the end; status.json says "running" from the start (0 done) while it runs."""
+    import json
+
+    import pandas as pd
+
+    from trl_dgpq.commands import train
+    out = tmp_path / "run"
+    saved, statuses = [], []
+    original = RunFolder.save_checkpoint
+
+    def spy(self, state):
+        saved.append(state["episodes_done"])
+        statuses.append(json.loads((self.path / runner.STATUS).read_text()))
+        return original(self, state)
+    monkeypatch.setattr(RunFolder, "save_checkpoint", spy)
+    assert train.main(["--env", "corridor", "--agent", "constant", "--slip", "0.4", "--seeds", "0-4", "--episodes",
+                       "8", "--checkpoint-every", "1", "--out", str(out), "--no-progress"]) == 0
+    df = pd.read_csv(out / "episodes.csv")
+    df["end"] = df.groupby("seed")["steps"].cumsum()          # the batched step each episode ended at
+    done = df.groupby("end").size().cumsum()                  # episodes done after those steps
+    want, next_at = [], 5
+    for count in done.tolist():
+        if count >= next_at and count < 40:
+            want.append(count)
+            next_at = (count // 5 + 1) * 5
+    assert saved == want + [40] and any(c % 5 for c in want)  # a jump past a multiple happened
+    assert all(s["status"] == "running" and s["episodes_done"] == 0 for s in statuses)
+
+
+def test_status_json_has_the_time_and_the_writers_pid(tmp_path):
+    import json
+    import time
+    (tmp_path / "run").mkdir()
+    folder = RunFolder(tmp_path / "run")
+    before = time.time()
+    folder.set_status("running", episodes_done=3)
+    got = json.loads((tmp_path / "run" / runner.STATUS).read_text())
+    assert got["status"] == "running" and got["reason"] is None and got["episodes_done"] == 3
+    assert got["pid"] == os.getpid()
+    stamp = time.mktime(time.strptime(got["time"], "%Y-%m-%d %H:%M:%S"))
+    assert before - 1 <= stamp <= time.time() + 1
+
+
+def test_alive_asks_without_disturbing_the_process():
+    import subprocess
+    import sys
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        assert runner._alive(child.pid) is True
+        time_left = 20
+        while time_left and child.poll() is None:  # a signal sent by mistake would end it
+            time_left -= 1
+            __import__("time").sleep(0.01)
+        assert child.poll() is None
+    finally:
+        child.kill()
+        child.wait()
+    assert runner._alive(child.pid) is False and runner._alive(os.getpid()) is False
+    assert runner._alive("123") is False
+
+
+def test_a_new_run_folder_is_made_with_its_missing_parents(tmp_path):
+    folder = RunFolder.create(None, "square-dgpq", root=str(tmp_path / "a" / "b"))
+    assert folder.path.parent == tmp_path / "a" / "b" and folder.path.name.startswith("square-dgpq")
