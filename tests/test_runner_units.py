@@ -860,3 +860,31 @@ def test_alive_asks_without_disturbing_the_process():
 def test_a_new_run_folder_is_made_with_its_missing_parents(tmp_path):
     folder = RunFolder.create(None, "square-dgpq", root=str(tmp_path / "a" / "b"))
     assert folder.path.parent == tmp_path / "a" / "b" and folder.path.name.startswith("square-dgpq")
+
+
+def test_a_new_run_folder_goes_under_runs_by_default(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    folder = RunFolder.create(None, "square-dgpq")
+    assert folder.path.parent.resolve() == (tmp_path / "runs").resolve()
+
+
+def test_no_unique_run_folder_left_is_one_line_naming_the_root(tmp_path, monkeypatch):
+    from pathlib import Path
+    real = Path.mkdir
+
+    def taken(self, *a, **kw):
+        if self.name.startswith("square-dgpq"):
+            raise FileExistsError(self)
+        return real(self, *a, **kw)
+    monkeypatch.setattr(Path, "mkdir", taken)
+    with pytest.raises(runner.RunError, match=f"could not create a unique run folder under {tmp_path / 'r'}$"):
+        RunFolder.create(None, "square-dgpq", root=str(tmp_path / "r"))
+
+
+def test_out_holding_a_run_is_refused_naming_it(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / runner.CONFIG).write_text("{}")
+    (out / runner.STATUS).write_text('{"status": "finished"}')
+    with pytest.raises(runner.RunError, match=f"--out {out} holds a run: continue it with --resume {out}, "):
+        RunFolder.create(str(out), "x")
