@@ -50,3 +50,23 @@ def test_eval_csv_is_every_jobs_seeds_sorted_with_a_plain_index(experiment):
 def test_evaluation_episodes_must_be_a_positive_integer(experiment, episodes):
     with pytest.raises(ValueError, match=f"episodes must be a positive integer, got {episodes}"):
         evaluate(experiment, episodes)
+
+
+def test_evaluate_plays_ten_episodes_per_seed_quietly_by_default(experiment, capfd):
+    df = evaluate(experiment)
+    assert df.groupby("seed").episode.max().tolist() == [10] * 4
+    assert capfd.readouterr().err == ""                       # no progress bar unless asked
+
+
+def test_episode_steps_without_a_row_plays_until_every_seed_is_done():
+    """The corridor of 4 cells without slip, row 0 moving right (3 steps to the goal), row 1
+    left (the 5-step cap): with no row, the steps go on until both are done, row 0 staying done."""
+    import torch
+
+    from trl_dgpq.collectors.evaluate import episode_steps
+    from trl_dgpq.envs.corridor.env import CorridorEnv
+    env = CorridorEnv([3, 8], length=4, slip=0.0, max_steps=5)
+    done = [d.tolist() for _, _, d in episode_steps(env, lambda td: torch.tensor([1, 0]), env.reset())]
+    assert done == [[False, False], [False, False], [True, False], [True, False], [True, True]]
+    env = CorridorEnv([3, 8], length=4, slip=0.0, max_steps=5)
+    assert len(list(episode_steps(env, lambda td: torch.tensor([1, 0]), env.reset(), row=0))) == 3
