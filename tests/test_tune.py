@@ -94,6 +94,19 @@ def test_objective_measure_at_budget_by_hand():
     assert obj.direction == "minimize" and obj.threshold is None
     assert obj.per_seed(run).tolist() == [5.5, 15.5, 25.5, 35.5]
     assert obj.value(run) == pytest.approx((15.5 + 25.5) / 2)
+    # over the last 4 episodes within the budget (7-10): seed s's mean is 10 s + 8.5
+    late = objective("liquidation", "report", window=4)
+    assert late.per_seed(run).tolist() == [8.5, 18.5, 28.5, 38.5] and "last 4 episodes" in late.text
+
+
+def test_a_study_keeps_its_window(tmp_path, capsys):
+    out = str(tmp_path / "study")
+    assert tune.main([*TINY, "--episodes", "2", "--out", out, "--trials", "1", "--objective", "measure",
+                      "--window", "2"]) == 0
+    assert "last 2 episodes" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exc:
+        tune.main(["--out", out, "--trials", "2", "--window", "5"])
+    assert exc.value.code == 2 and "keeps its window" in capsys.readouterr().err
 
 
 def test_a_stage_of_a_run_is_the_shorter_run():

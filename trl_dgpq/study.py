@@ -70,11 +70,14 @@ class TuneConfig:
                                        "'measure', the measure at the budget even where there is a threshold (a "
                                        "threshold few trials meet scores them all alike: the budget)",
                              choices=("report", "measure"))
+    window: int = setting(10, "episodes at the end of a trial's budget that the measure is averaged over (a "
+                              "domain without a threshold, or --objective measure): more scores how a learner "
+                              "ends rather than a lucky stretch", within="[1, inf)")
     search: Tuple[str, ...] = setting((), "ranges that replace the agent's own, NAME=LOW:HIGH (log-uniform), comma-"
                                           "separated, e.g. lengthscale=1:30,eps1=0.1:3: for a domain whose metric "
                                           "or reward has another scale than the agent's search space assumes")
 
-    FIXED = ("sampler_seed", "stages", "prune_after", "objective", "search")  # kept by the study from its first run
+    FIXED = ("sampler_seed", "stages", "prune_after", "objective", "search", "window")  # kept by the study from its first run
 
     def cross_check(self) -> None:
         if list(self.stages) != sorted(set(self.stages)) or self.stages[-1] != 1:
@@ -171,7 +174,7 @@ class Study:
         self.name = self.out.resolve().name
         self.tune = from_dict(TuneConfig, request["tune"])
         self.config = request["config"]
-        self.objective = objective(self.config["run"]["env"], self.tune.objective)
+        self.objective = objective(self.config["run"]["env"], self.tune.objective, self.tune.window)
         agent_cls = classes(self.config["run"])[1]
         given = split_overrides(self.given_agent_env(), *classes(self.config["run"]))
         space = with_ranges(search_space(agent_cls), self.tune.search)

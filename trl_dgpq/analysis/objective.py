@@ -33,12 +33,13 @@ class Objective:
     direction: str                  # "minimize" or "maximize", as Optuna says it
     threshold: Optional[Threshold]  # steps to it, or (None) the measure at the budget:
     column: str
+    window: int = WINDOW            # the measure's episodes at the end of the budget
 
     def per_seed(self, run: Run) -> pd.Series:
         budget = default_budget([(None, run)])
         if self.threshold is not None:
             return steps_to_threshold(run.df, self.threshold, budget).fillna(budget)
-        return at_budget(run.df, self.column, budget, WINDOW)
+        return at_budget(run.df, self.column, budget, self.window)
 
     def value(self, run: Run) -> float:
         """The IQM over seeds of ``per_seed`` (NaN if no seed has a value: none ended an episode
@@ -46,9 +47,10 @@ class Objective:
         return iqm_point(self.per_seed(run))
 
 
-def objective(env: str, kind: str = "report") -> Objective:
+def objective(env: str, kind: str = "report", window: int = WINDOW) -> Objective:
     """``env``'s objective: ``kind`` "report" as the module says, "measure" the measure at the
-    budget even where the domain has a threshold."""
+    budget even where the domain has a threshold; the measure averaged over each seed's last
+    ``window`` episodes (more: a study that scores how a learner ends, not one lucky stretch)."""
     from trl_dgpq.envs import domain, split_name
     d, env_id = domain(env), split_name(env)[1]
     if kind not in ("report", "measure"):
@@ -58,8 +60,8 @@ def objective(env: str, kind: str = "report") -> Objective:
         return Objective("steps to threshold", f"steps to threshold ({threshold.text}; a seed that never met it: "
                          "the budget), IQM over seeds", "minimize", threshold, threshold.column)
     column, label = d.measure(env_id)
-    return Objective(f"{label} at budget", f"{label} at budget (mean of each seed's last {WINDOW} episodes), IQM "
-                     "over seeds", "minimize" if d.lower_is_better(env_id) else "maximize", None, column)
+    return Objective(f"{label} at budget", f"{label} at budget (mean of each seed's last {window} episodes), IQM "
+                     "over seeds", "minimize" if d.lower_is_better(env_id) else "maximize", None, column, window)
 
 
 def stage(run: Run, lengths: dict) -> Run:
