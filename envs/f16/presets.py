@@ -80,7 +80,8 @@ FLIGHT = dict(decision_steps=5, max_steps=40)
 # (-135); L_Q 10, eps1 0.5 holds (-138); L_Q 20, eps1 0.3 -193 and still improving; L_Q 50, eps1 1
 # -337. On the reporting seeds 0-9 (configs/f16-flight-05.toml; docs/domains/f16.md): L_Q 5 -256 at
 # episodes 91-100, -130 at 901-1,000, -116 at 1,401-1,500; L_Q 10 -337, -259, -207; DQN (small, gamma
-# 0.9) -229, -115, -88; LQR -60.5, PD -73, nothing -135.
+# 0.9) -229, -115, -88; LQR -60.5, PD -73, nothing -135. DGPQ L_Q 5 lengthened to 3,000: -104 at 2,401-2,500,
+# -99 at 2,901-3,000 (one seed of ten near -250).
 FLIGHT_05 = dict(decision_steps=10, max_steps=20, h_max=10_000.0, attitude_max=1.5, rate_max=10.0)
 
 PRESETS = {
