@@ -407,6 +407,7 @@ def test_optimism_compares_qhat_with_the_lower_bound_per_seed(tmp_path, monkeypa
             assert (df[f"below_{n}"] == share).all(), (bound, n)
         assert all(sum(g) == 6 for g in df.greedy)           # 3 episodes x 2 decisions
         assert df.q_start.tolist() == [[bound] * 3] * 2
+        assert list(df.attrs["slopes"].index) == ["up", "hold", "down"]
 
 
 def test_optimism_refuses_a_run_without_qhat(tmp_path):

@@ -290,7 +290,7 @@ def optimism(folder: Path, on: str = "hold", episodes: int = 8, rollouts: int = 
     below Q of a-then-LQR less ε₁ (optimism lost), the median shortfall there, Q̂'s greedy
     action against the LQR-continuation's best (counts of nose-up, hold, nose-down; ``pulse_gap``:
     the median margin by which a pulse is best where it is), and Q̂
-    and Q at the start state."""
+    and Q at the start state; ``attrs["slopes"]``: ``slopes`` at those states."""
     import torch
 
     from trl_dgpq.collectors.evaluate import jobs, restore
@@ -300,8 +300,6 @@ def optimism(folder: Path, on: str = "hold", episodes: int = 8, rollouts: int = 
     states = visited(env.cfg, on, episodes, seed=9000)
     q = lqr_q(env.cfg, states, agent.cfg.gamma, rollouts)
     f = agent.features(states / env.scale)
-    print(f"Q of a-then-LQR along {on}'s flights: its slope per unit of the run's metric\n"
-          f"{slopes(f, q).round(1).to_string()}")
     qhat = torch.stack([agent.qhat(x[None].expand(agent.S, -1)) for x in f])    # (N, S, A)
     top = q.sort(1, descending=True).values
     pulse = q.argmax(1) != 1
@@ -318,7 +316,9 @@ def optimism(folder: Path, on: str = "hold", episodes: int = 8, rollouts: int = 
                          qhat_start=[round(v, 1) for v in qhat[0, i].tolist()],
                          q_start=[round(v, 1) for v in q[0].tolist()],
                          qhat_pairs=int(agent.qhat.size()[i])))
-    return pd.DataFrame(rows)
+    df = pd.DataFrame(rows)
+    df.attrs["slopes"] = slopes(f, q)   # how steep Q is there, per unit of the run's metric
+    return df
 
 
 def slopes(features, q, min_distance: float = 0.05) -> pd.DataFrame:
@@ -339,4 +339,8 @@ def slopes(features, q, min_distance: float = 0.05) -> pd.DataFrame:
 if __name__ == "__main__":   # python -m trl_dgpq.envs.f16.analysis RUN [hold|lqr]
     import sys
     pd.set_option("display.width", 250)
-    print(optimism(Path(sys.argv[1]), *sys.argv[2:3]).to_string(index=False))
+    on = (sys.argv[2:3] or ["hold"])[0]
+    got = optimism(Path(sys.argv[1]), on)
+    print(f"Q of a-then-LQR along {on}'s flights: its slope per unit of the run's metric\n"
+          f"{got.attrs['slopes'].round(1).to_string()}")
+    print(got.to_string(index=False))
