@@ -22,6 +22,7 @@ the start would have: the seeds that ran on past checkpoint.extend.pt run again.
 """
 from __future__ import annotations
 
+import csv
 import io
 import json
 import os
@@ -254,13 +255,29 @@ class RunFolder:
         """Append rows to episodes.csv (header first if new), flushed; returns its size."""
         path = self.file(EPISODES)
         new = not path.exists() or path.stat().st_size == 0
+        df = pd.DataFrame(rows)
+        if not new:
+            df = self._to_header(df)
         try:
             with open(path, "a", newline="") as f:
-                pd.DataFrame(rows).to_csv(f, header=new, index=False)
+                df.to_csv(f, header=new, index=False)
                 f.flush()
                 return f.tell()
         except OSError as err:  # a part row may be on disk: past the checkpoint, cut on resume
             raise type(err)(err.errno, err.strerror or str(err), str(path)) from None
+
+    def _to_header(self, df: pd.DataFrame) -> pd.DataFrame:
+        """``df``'s columns in episodes.csv's order. A run resumed by newer code whose env or
+        agent reports more per episode: the file gains those columns (empty in its earlier
+        rows) rather than rows that no longer match its header; a column it no longer
+        reports stays, empty in the new rows."""
+        path = self.file(EPISODES)
+        with open(path, newline="") as f:
+            header = next(csv.reader(f))
+        added = [c for c in df.columns if c not in header]
+        if added:
+            self.write_episodes(self.episodes().reindex(columns=header + added))
+        return df.reindex(columns=header + added)
 
     def csv_size(self) -> int:
         path = self.file(EPISODES)

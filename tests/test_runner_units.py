@@ -886,3 +886,20 @@ def test_out_holding_a_run_is_refused_naming_it(tmp_path):
     (out / runner.STATUS).write_text('{"status": "finished"}')
     with pytest.raises(runner.RunError, match=f"--out {out} holds a run: continue it with --resume {out}, "):
         RunFolder.create(str(out), "x")
+
+
+def test_rows_with_columns_the_file_lacks_add_them_and_fewer_columns_leave_gaps(tmp_path):
+    """A run begun by older code and resumed by newer code whose env reports more per episode:
+    the rows still line up with the header (the old rows empty in the new column), never a
+    row with more fields than the header."""
+    import pandas as pd
+    folder = RunFolder(tmp_path / "r")
+    folder.path.mkdir()
+    folder.append_rows([dict(seed=0, episode=1, steps=5, ac_cost=2.5)])
+    folder.append_rows([dict(seed=0, episode=2, steps=6, ac_cost=3.5, cost_ratio=1.25)])
+    folder.append_rows([dict(seed=1, episode=1, steps=7, cost_ratio=0.5, ac_cost=4.5)])  # another order
+    folder.append_rows([dict(seed=1, episode=2, steps=8, ac_cost=5.5)])                 # one fewer
+    df = pd.read_csv(folder.file(runner.EPISODES))
+    assert list(df.columns) == ["seed", "episode", "steps", "ac_cost", "cost_ratio"]
+    assert df.ac_cost.tolist() == [2.5, 3.5, 4.5, 5.5] and df.steps.tolist() == [5, 6, 7, 8]
+    assert df.cost_ratio.tolist()[1:3] == [1.25, 0.5] and df.cost_ratio.isna().tolist() == [True, False, False, True]
