@@ -201,7 +201,7 @@ def test_a_reward_domain_summary_gives_the_reward_and_evaluate_the_domains_forma
     first = df[df.episode <= 2]["return"].mean()
     last = df[df.episode >= 3]["return"].mean()
     assert f"episode reward, mean over seeds: first 2 episodes {first:.4g}, last 2 {last:.4g}" in text
-    assert domain("liquidation").format_measure(603_212.4) == "$603,212"
+    assert domain("liquidation").format_measure(1.23456) == "1.2346"
     assert domain("f16").format_measure(-134.44) == "-134.4"
     assert train.measure_line(df.assign(steps=1), domain("square"), None) == []   # steps: said already
 

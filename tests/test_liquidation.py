@@ -256,3 +256,47 @@ def test_drift_is_the_paired_cost_ratio_per_block_by_hand():
     assert got["worst_over_best"] == pytest.approx(2.0 / 1.5)
     ref.loc[ref.episode == 3, "ac_cost"] = 4.0                  # pairs, not means of separate sets
     assert drift(df, ref, block=2, settle=2, last=2)["blocks"][1] == pytest.approx(6.0 / 6.0)
+    own = df.assign(optimal_ac_cost=[2.0, 2.0, 4.0, 2.0, 2.0, 2.0])  # the run's own column: no reference run
+    assert drift(own, block=2, settle=2, last=2)["blocks"] == pytest.approx([2.0, 1.0, 2.0])
+
+
+def test_cost_ratio_pairs_each_episode_with_the_ac_optimum_on_its_prices():
+    """optimal_ac_cost is what the ac-optimal agent pays on the same (seed, episode), whatever
+    the other agent did before (random sells at random speeds: its episodes differ in length),
+    and cost_ratio = 1 + (ac_cost - that) / U*; the optimum's own ratio is 1."""
+    opt = run_experiment(resolve_config(env="liquidation", agent="ac-optimal", seeds=[3, 4], episodes=12),
+                         progress=False)
+    rnd = run_experiment(resolve_config(env="liquidation", agent="random", seeds=[4, 3], episodes=12),
+                         progress=False)
+    assert rnd.steps.nunique() > 3
+    assert opt.optimal_ac_cost.to_numpy() == pytest.approx(opt.ac_cost.to_numpy(), rel=1e-12)
+    assert opt.cost_ratio.to_numpy() == pytest.approx([1.0] * len(opt), abs=1e-10)
+    pairs = rnd.merge(opt, on=["seed", "episode"], suffixes=("", "_opt"))
+    assert len(pairs) == 24
+    assert pairs.optimal_ac_cost.to_numpy() == pytest.approx(pairs.ac_cost_opt.to_numpy(), rel=1e-12)
+    assert pairs.cost_ratio.to_numpy() == pytest.approx((1 + (pairs.ac_cost - pairs.ac_cost_opt) / U_STAR).to_numpy(),
+                                                         rel=1e-6)
+
+
+def test_path_cost_by_hand_on_two_trades():
+    env = LiquidationEnv(seeds=[0], trades=2, horizon=2.0, shares=1000)
+    m, s0 = env.model, 50.0
+    a = m.eta / m.tau
+    step = math.sqrt(m.sigma2 * m.tau)
+    first = 600 * (m.eps + a * 600)                                  # at S_0: no noise before the first trade
+    second = 400 * (s0 - (s0 + step * 0.5 - m.gamma * 600 - m.eps - a * 400))
+    risk = m.lam * m.sigma2 * m.tau * 400 ** 2                       # held after the first trade; 0 after the last
+    got = env.path_cost(torch.tensor([600.0, 400.0], dtype=torch.float64),
+                        torch.tensor([[0.5, -1.0], [0.0, 0.0]], dtype=torch.float64))
+    assert got[0].item() == pytest.approx(first + second + risk, rel=1e-12)
+    assert got[1].item() == pytest.approx(first + 400 * (m.gamma * 600 + m.eps + a * 400) + risk, rel=1e-12)
+
+
+def test_a_checkpoint_from_before_optimal_ac_cost_loads_with_it_from_its_prices():
+    env = LiquidationEnv(seeds=[0, 1])
+    env.reset()
+    state = env.state_dict()
+    old = {k: v for k, v in state.items() if k != "optimal_ac_cost"}
+    fresh = LiquidationEnv(seeds=[0, 1])
+    fresh.load_state_dict(old)
+    assert torch.equal(fresh.optimal_ac_cost, state["optimal_ac_cost"]) and bool((state["optimal_ac_cost"] > 0).all())

@@ -94,7 +94,7 @@ def test_runs_differing_only_on_the_agents_side_share_a_table(tmp_path):
             fake_run(tmp_path / "u", "liquidation", {0: [60] * 12}, agent="ddpg",
                      env_cfg={"action_levels": 0, "reward": "utility-ratio"})]
     for run in runs:  # the measure's column
-        df = pd.read_csv(run / "episodes.csv").assign(ac_cost=1.0)
+        df = pd.read_csv(run / "episodes.csv").assign(cost_ratio=1.0)
         df.to_csv(run / "episodes.csv", index=False)
     written, text = report(runs, ["dgpq", "opt", "ddpg"], tmp_path / "out")
     sections = {part.splitlines()[0]: part for part in text.split("\n## ")[1:]}
@@ -218,3 +218,16 @@ def test_a_domain_declaring_no_direction_counts_more_as_better(tmp_path, scored,
                           returns={s: [r] * 12 for s in range(3)}) for agent, r in zip(("dgpq", "dqn"), returns))
     report([dgpq, dqn], None, tmp_path / "out", budget=120)
     assert scored["improvement"][-1] == ([returns[0]] * 3, [returns[1]] * 3)   # at budget: the last comparison
+
+
+def test_a_run_without_its_domains_measure_column_is_named_in_one_line(tmp_path):
+    """A liquidation run from before the env recorded cost_ratio: report and the study's
+    objective name the run and the column, not a pandas KeyError."""
+    from trl_dgpq.analysis.objective import objective
+    folder = fake_run(tmp_path / "old", "liquidation", {0: [60] * 12}, agent="dgpq")
+    df = pd.read_csv(folder / "episodes.csv").assign(ac_cost=1.0)
+    df.drop(columns=[c for c in ("cost_ratio",) if c in df]).to_csv(folder / "episodes.csv", index=False)
+    with pytest.raises(ValueError, match=r"old: episodes.csv has no 'cost_ratio' column.*run it again"):
+        report([folder], ["old"], tmp_path / "out")
+    with pytest.raises(ValueError, match="no 'cost_ratio' column"):
+        objective("liquidation").value(load_run(folder))

@@ -34,7 +34,7 @@ def trials_of(out):
 
 def frame(rows):
     """A hand-made episodes frame as ``load_run`` gives it (each seed's cumulative env_steps)."""
-    df = pd.DataFrame(rows, columns=["seed", "episode", "steps", "ac_cost"])  # liquidation's measure
+    df = pd.DataFrame(rows, columns=["seed", "episode", "steps", "cost_ratio"])  # liquidation's measure
     df["env_steps"] = df.groupby("seed")["steps"].cumsum()
     return df
 
@@ -83,6 +83,28 @@ def test_a_study_keeps_its_objective_and_older_studies_read_as_report():
     assert Study.reopen_request(measured, {}, {})["tune"]["objective"] == "measure"
     with pytest.raises(ValueError, match="keeps its objective measure"):
         Study.reopen_request(measured, {}, {"objective": "report"})
+
+
+def test_a_study_keeps_the_column_its_trials_were_scored_on(tmp_path):
+    """A study records the column it scores; reopened after its env's measure changed, it is
+    refused in one line rather than scoring new trials on another scale than its old ones. A
+    study made before the record gets it on reopening."""
+    from trl_dgpq.study import Study
+    out = tmp_path / "study"
+    given = {"env": "square", "agent": "dqn", "episodes": "4"}
+    study = Study.open(out, None, given, {})
+    url = f"sqlite:///{out / 'study.db'}"
+    assert study.request["scored"] == "steps" == Study.stored_request(url, "study")["scored"]
+
+    def stored_as(scored):
+        request = {k: v for k, v in Study.stored_request(url, "study").items() if k != "scored"}
+        optuna.load_study(study_name="study", storage=url).set_user_attr(
+            "request", request if scored is None else {**request, "scored": scored})
+    stored_as("ac_cost")
+    with pytest.raises(ValueError, match="scored on 'ac_cost'.* now 'steps'"):
+        Study.open(out, None, {}, {})
+    stored_as(None)
+    assert Study.open(out, None, {}, {}).request["scored"] == "steps" == Study.stored_request(url, "study")["scored"]
 
 
 def test_objective_measure_at_budget_by_hand():

@@ -175,6 +175,12 @@ class Study:
         self.tune = from_dict(TuneConfig, request["tune"])
         self.config = request["config"]
         self.objective = objective(self.config["run"]["env"], self.tune.objective, self.tune.window)
+        # the column its trials were scored on, kept: a domain whose measure changed since would
+        # score new trials on another scale than the old ones, and Optuna would compare them
+        scored = request.setdefault("scored", self.objective.column)
+        if scored != self.objective.column:
+            raise ValueError(f"the study's trials are scored on {scored!r}, and its env's objective is now "
+                             f"{self.objective.column!r}: start a new study (another --out)")
         agent_cls = classes(self.config["run"])[1]
         given = split_overrides(self.given_agent_env(), *classes(self.config["run"]))
         space = with_ranges(search_space(agent_cls), self.tune.search)

@@ -13,7 +13,13 @@ and ``shares_left`` (shares), for agents that follow a schedule, and, as running
 episode (the runner puts their final values in the episode's CSV row):
 ``implementation_shortfall`` = X S_0 - sum n_k exec_k and ``ac_cost`` = shortfall +
 lambda sigma^2 tau sum x_k^2 (x_k held after trade k), whose expectation for the
-AC schedule is U*.
+AC schedule is U*. Per episode (constant over it): ``optimal_ac_cost``, the ac_cost the AC
+schedule (``ac-optimal``, rounded as trades are) has on this episode's price path; and
+``cost_ratio`` = 1 + (ac_cost - optimal_ac_cost) / U*, final at the episode's end: an
+estimate of E[ac_cost] / U* paired with the optimum on the same prices. The price noise
+moves a single ac_cost by ~2.5 U* (s.d.), far more than policies differ; it moves the
+difference to the optimum on the same path far less, so means of ``cost_ratio`` over a
+few hundred episodes separate policies that means of ``ac_cost`` over thousands do not.
 
 Rewards:
   "shortfall" (default): r_k = -[n_k (S_0 - exec_k) + lambda sigma^2 tau x_k^2] / reward_scale,
@@ -93,9 +99,9 @@ class LiquidationEnv(SeedBatchedEnv):
 
     Config = LiquidationConfig
     action_hint = "liquidation: action_levels=0 gives a continuous sell fraction, >= 2 discrete levels"
-    episode_info = ("implementation_shortfall", "ac_cost")
+    episode_info = ("implementation_shortfall", "ac_cost", "optimal_ac_cost", "cost_ratio")
     _streams = (("price_rng", PRICE_STREAM),)  # keyed by episode (uniform_at): its counter never moves
-    _state_names = ("x", "price", "returns", "shortfall", "ac_cost", "episode", "ou", "xi")
+    _state_names = ("x", "price", "returns", "shortfall", "ac_cost", "episode", "ou", "xi", "optimal_ac_cost")
 
     def __init__(self, seeds=(0,), cfg: LiquidationConfig | None = None, device="cpu", **overrides):
         super().__init__(seeds, cfg, device, **overrides)
@@ -110,6 +116,9 @@ class LiquidationEnv(SeedBatchedEnv):
         self.episode = torch.full((S,), -1, dtype=torch.long, device=self.device)  # index of the current episode
         self.ou = torch.zeros(S, **f64)
         self.xi = torch.zeros(S, cfg.trades, **f64)  # the current episode's price noise
+        self.optimal_ac_cost = torch.zeros(S, **f64)  # the AC schedule's ac_cost on that noise
+        self.u_star = self.model.utility()
+        self.optimal_trades = self._schedule_trades(self.model.sell_fractions())
         self.levels = torch.linspace(0, 1, cfg.action_levels, **f64) if cfg.action_levels else None
 
     @classmethod
@@ -121,6 +130,8 @@ class LiquidationEnv(SeedBatchedEnv):
             shares_left=Bounded(0.0, float(cfg.shares), shape=(S,), **f64),
             implementation_shortfall=Unbounded(shape=(S,), **f64),
             ac_cost=Unbounded(shape=(S,), **f64),
+            optimal_ac_cost=Unbounded(shape=(S,), **f64),
+            cost_ratio=Unbounded(shape=(S,), **f64),
             shape=(S,), device=device)
         if cfg.action_levels:
             action = Categorical(cfg.action_levels, shape=(S,), device=device)
@@ -133,7 +144,9 @@ class LiquidationEnv(SeedBatchedEnv):
         left = (cfg.trades - trades_done).to(torch.float64)
         obs = torch.cat([self.returns, (left / cfg.trades)[:, None], (self.x / cfg.shares)[:, None]], -1)
         return self._td(observation=obs, trades_left=left, shares_left=self.x.clone(),
-                        implementation_shortfall=self.shortfall.clone(), ac_cost=self.ac_cost.clone())
+                        implementation_shortfall=self.shortfall.clone(), ac_cost=self.ac_cost.clone(),
+                        optimal_ac_cost=self.optimal_ac_cost.clone(),
+                        cost_ratio=1 + (self.ac_cost - self.optimal_ac_cost) / self.u_star)
 
     def _initial(self, mask):
         self.x[mask] = float(self.cfg.shares)
@@ -144,7 +157,38 @@ class LiquidationEnv(SeedBatchedEnv):
         # xi of (seed, episode): draw ``episode`` of the seed's price stream, whatever happened before.
         u = self.price_rng.uniform_at(self.episode, 2 * self.cfg.trades).view(-1, 2, self.cfg.trades)
         self.xi[mask] = box_muller(u[:, 0], u[:, 1])[mask] * float(self.cfg.price_noise)
+        self.optimal_ac_cost[mask] = self.path_cost(self.optimal_trades, self.xi[mask])
         return self._observation(self.t)
+
+    def load_state_dict(self, state: dict, strict: bool = True) -> None:
+        if "optimal_ac_cost" not in state:  # a checkpoint from before the column: its episode's xi says it
+            state = {**state, "optimal_ac_cost": self.path_cost(self.optimal_trades, state["xi"])}
+        super().load_state_dict(state, strict)
+
+    def _shares_to_sell(self, fraction, x, last):
+        """Whole shares of ``fraction`` of the ``x`` held, everything at the ``last`` trade."""
+        return torch.where(last, x, torch.round(fraction * x).clamp(min=0.0).minimum(x))
+
+    def _schedule_trades(self, fractions: torch.Tensor) -> torch.Tensor:
+        """n_1..n_N (N,) of selling ``fractions[k]`` of the rest at trade k + 1, rounded as ``step``
+        rounds (so ``path_cost`` is ac-optimal's ac_cost, not the unrounded schedule's)."""
+        x, trades = torch.tensor(float(self.cfg.shares), dtype=torch.float64), []
+        for k, fraction in enumerate(fractions):
+            n = self._shares_to_sell(fraction, x, torch.tensor(k + 1 >= self.cfg.trades))
+            trades.append(n)
+            x = x - n
+        return torch.stack(trades)
+
+    def path_cost(self, trades: torch.Tensor, xi: torch.Tensor) -> torch.Tensor:
+        """ac_cost (B,) of selling ``trades`` (N,) on price noise ``xi`` (B, N), as ``step`` adds it
+        up: trade k at S_{k-1} - eps sign(n_k) - (eta / tau) n_k, S_k = S_{k-1} + sigma sqrt(tau)
+        xi_k - gamma n_k, plus lambda sigma^2 tau x_k^2."""
+        m, s0 = self.model, self.cfg.start_price
+        before = lambda v: torch.cumsum(v, -1) - v  # noqa: E731  (sum over j < k)
+        price = s0 + math.sqrt(m.sigma2 * m.tau) * before(xi) - m.gamma * before(trades)
+        exec_price = price - m.eps * torch.sign(trades) - (m.eta / m.tau) * trades
+        held = self.cfg.shares - torch.cumsum(trades, 0)
+        return (trades * (s0 - exec_price)).sum(-1) + m.lam * m.sigma2 * m.tau * (held * held).sum()
 
     def _fraction(self, action):
         if self.levels is None:
@@ -160,7 +204,7 @@ class LiquidationEnv(SeedBatchedEnv):
         cfg, m = self.cfg, self.model
         x = self.x
         last = self.t + 1 >= cfg.trades
-        n = torch.where(last, x, torch.round(self._fraction(action) * x).clamp(min=0.0).minimum(x))
+        n = self._shares_to_sell(self._fraction(action), x, last)
         exec_price = self.price - m.eps * torch.sign(n) - (m.eta / m.tau) * n
         trade_cost = n * (cfg.start_price - exec_price)
         x_new = x - n

@@ -144,6 +144,7 @@ def evaluation_figure(runs, labels, out: Path, column: str, ylabel: str):
     import pandas as pd
     found = [(label, pd.read_csv(run.path / "eval.csv")) for run, label in zip(runs, labels)
              if (run.path / "eval.csv").is_file()]
+    found = [(label, df) for label, df in found if column in df]  # (an evaluation from before the column)
     if not found:
         return None
     fig, ax = plt.subplots(figsize=(max(4.0, 1.2 + 1.3 * len(found)), 4.0))

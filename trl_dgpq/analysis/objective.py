@@ -37,6 +37,7 @@ class Objective:
 
     def per_seed(self, run: Run) -> pd.Series:
         budget = default_budget([(None, run)])
+        run.need(self.column)
         if self.threshold is not None:
             return steps_to_threshold(run.df, self.threshold, budget).fillna(budget)
         return at_budget(run.df, self.column, budget, self.window)

@@ -158,7 +158,9 @@ def report(runs, labels, out: Path, budget=None, window: int = WINDOW) -> tuple:
     for (env, _), entries in groups.items():
         first = entries[0][1]
         name = group_name(env, task_settings(first), [json.loads(k[1]) for k in groups if k[0] == env])
-        column, ylabel = first.domain.measure(first.env_id)
+        column, ylabel = first.measure()
+        for _, run in entries:
+            run.need(column)
         threshold = first.domain.threshold(first.env_id)
         lower = first.domain.lower_is_better(first.env_id)
         b = budget or default_budget(entries)

@@ -72,7 +72,7 @@ def train_command(config: dict) -> str:
 def row(experiment: str, run, last: Optional[int] = None, command: Optional[str] = None) -> dict:
     """The row of one run (``analysis.runs.Run``): its measure over each seed's last ``last``
     episodes (default: the domain's ``DEFAULT_LAST``, else 10)."""
-    column, _ = run.domain.measure(run.env_id)
+    column, _ = run.measure()
     if last is None:
         last = getattr(run.domain.analysis(), "DEFAULT_LAST", 10)
     per_seed = run.df.sort_values(["seed", "episode"]).groupby("seed").tail(last).groupby("seed")[column].mean()

@@ -57,6 +57,18 @@ class Run:
         from trl_dgpq.envs import domain
         return None if self.config is None else domain(self.env)
 
+    def measure(self):
+        """(column, label) of the domain's measure; ValueError (one line) if episodes.csv lacks
+        the column (a run made before the env recorded it)."""
+        column, label = self.domain.measure(self.env_id)
+        self.need(column)
+        return column, label
+
+    def need(self, column: str) -> None:
+        if column not in self.df:
+            raise ValueError(f"{self.path}: episodes.csv has no {column!r} column, what {self.env} runs are "
+                             "measured by (a run made before its env recorded it): run it again")
+
     @property
     def env_id(self):
         from trl_dgpq.envs import split_name
