@@ -86,25 +86,28 @@ def test_a_study_keeps_its_objective_and_older_studies_read_as_report():
 
 
 def test_a_study_keeps_the_column_its_trials_were_scored_on(tmp_path):
-    """A study records the column it scores; reopened after its env's measure changed, it is
-    refused in one line rather than scoring new trials on another scale than its old ones. A
-    study made before the record gets it on reopening."""
+    """A study records the column it scores; reopened after its env's measure changed, it goes
+    on scoring that column (at the budget, over its window), so new trials are on the old ones'
+    scale. A study made before the record gets it on reopening."""
     from trl_dgpq.study import Study
     out = tmp_path / "study"
-    given = {"env": "square", "agent": "dqn", "episodes": "4"}
-    study = Study.open(out, None, given, {})
+    study = Study.open(out, None, {"env": "liquidation", "agent": "dgpq", "episodes": "12"}, {"window": 4})
     url = f"sqlite:///{out / 'study.db'}"
-    assert study.request["scored"] == "steps" == Study.stored_request(url, "study")["scored"]
+    assert study.request["scored"] == "cost_ratio" == Study.stored_request(url, "study")["scored"]
 
     def stored_as(scored):
         request = {k: v for k, v in Study.stored_request(url, "study").items() if k != "scored"}
         optuna.load_study(study_name="study", storage=url).set_user_attr(
             "request", request if scored is None else {**request, "scored": scored})
     stored_as("ac_cost")
-    with pytest.raises(ValueError, match="scored on 'ac_cost'.* now 'steps'"):
-        Study.open(out, None, {}, {})
+    old = Study.open(out, None, {}, {}).objective
+    assert (old.column, old.threshold, old.window, old.direction) == ("ac_cost", None, 4, "minimize")
+    assert old.name == "ac_cost at budget" and "when the study began" in old.text
+    df = frame([(s, e, 5, 10 * s + e) for s in range(4) for e in range(1, 13)]).rename(columns={"cost_ratio": "ac_cost"})
+    run = Run(Path("."), df, {"run": {"env": "liquidation", "env_steps": 50, "episodes": 50}})
+    assert old.per_seed(run).tolist() == [8.5, 18.5, 28.5, 38.5]   # episodes 7-10 within the 50 steps
     stored_as(None)
-    assert Study.open(out, None, {}, {}).request["scored"] == "steps" == Study.stored_request(url, "study")["scored"]
+    assert Study.open(out, None, {}, {}).request["scored"] == "cost_ratio" == Study.stored_request(url, "study")["scored"]
 
 
 def test_objective_measure_at_budget_by_hand():

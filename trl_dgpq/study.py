@@ -38,7 +38,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from trl_dgpq.analysis.objective import objective, stage
+from trl_dgpq.analysis.objective import Objective, objective, stage
 from trl_dgpq.analysis.runs import load_run
 from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import classes, resolve_config, split_overrides
@@ -175,12 +175,13 @@ class Study:
         self.tune = from_dict(TuneConfig, request["tune"])
         self.config = request["config"]
         self.objective = objective(self.config["run"]["env"], self.tune.objective, self.tune.window)
-        # the column its trials were scored on, kept: a domain whose measure changed since would
-        # score new trials on another scale than the old ones, and Optuna would compare them
+        # the column its trials were scored on, kept: were the env's measure to change, new trials
+        # would otherwise be scored on another scale than the old ones and compared with them
         scored = request.setdefault("scored", self.objective.column)
         if scored != self.objective.column:
-            raise ValueError(f"the study's trials are scored on {scored!r}, and its env's objective is now "
-                             f"{self.objective.column!r}: start a new study (another --out)")
+            self.objective = Objective(f"{scored} at budget", f"{scored} at budget (mean of each seed's last "
+                                       f"{self.tune.window} episodes; the env's measure when the study began), IQM "
+                                       "over seeds", self.objective.direction, None, scored, self.tune.window)
         agent_cls = classes(self.config["run"])[1]
         given = split_overrides(self.given_agent_env(), *classes(self.config["run"]))
         space = with_ranges(search_space(agent_cls), self.tune.search)
