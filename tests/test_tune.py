@@ -338,6 +338,26 @@ def test_the_best_trial_round_trips_as_the_tuned_preset(tmp_path, monkeypatch):
     assert {"date", "commit", "budget", "trials", "objective"} <= set(provenance)
 
 
+def test_a_study_writes_its_preset_under_the_name_given_and_never_over_a_hand_set_one(tmp_path, monkeypatch, capsys):
+    """--write-preset NAME: the preset goes in under NAME (the default 'tuned' untouched); a name
+    of the domain's own presets.py, or not a plain name, is refused in one line before writing."""
+    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+    out = tmp_path / "study"
+    study = Study.open(out, None, {"env": "square", "agent": "dqn", "episodes": "4"}, {})
+    study.load().add_trial(optuna.trial.create_trial(value=7.0, user_attrs={"settings": {"lr": 0.004}}))
+    assert study.write_preset("late") == ("late", tmp_path / "tuned.json")
+    assert resolve_config(env="square", agent="dqn", preset="late")["agent"]["lr"] == 0.004
+    assert set(json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]) == {"late"}
+    for bad, says in [("shaped", "is a preset of dqn on square"), ("a b", "a preset name is"), ("_x", "a preset name is"), ("../x", "a preset name is")]:
+        with pytest.raises(SystemExit) as exc:
+            tune.main(["--out", str(out), "--trials", "1", "--write-preset", bad])
+        assert exc.value.code == 2 and says in capsys.readouterr().err
+    assert set(json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]) == {"late"}
+    assert tune.main(["--out", str(out), "--trials", "1", "--write-preset"]) == 0
+    assert "wrote preset 'tuned'" in capsys.readouterr().out
+    assert set(json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]) == {"late", "tuned"}
+
+
 # ---------------------------------------------------------------- --search: ranges for another scale
 def test_a_search_range_is_name_low_high_log_uniform():
     from trl_dgpq.tuning import parse_range, with_ranges

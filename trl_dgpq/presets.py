@@ -5,9 +5,9 @@ building blocks several domains share and the lookup.
 
 Keys are setting names as on the command line (``noise_var``, or dotted paths).
 
-A study's best trial (``trl-dgpq tune --write-preset``) is a preset too, named ``tuned`` when
-the study ran on the env's default preset and ``<preset>-tuned`` otherwise (the noisy
-square's is "noisy-tuned", so it never replaces the square's "tuned"): it lives in
+A study's best trial (``trl-dgpq tune --write-preset [NAME]``) is a preset too, named NAME or
+else ``tuned`` when the study ran on the env's default preset and ``<preset>-tuned`` otherwise
+(the noisy square's is "noisy-tuned", so it never replaces the square's "tuned"): it lives in
 ``envs/<domain>/tuned.json`` beside the domain's presets, keyed by env name, agent and
 preset name, with its provenance, and the lookup below adds it to every domain's table.
 """
@@ -16,6 +16,7 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import re
 from pathlib import Path
 
 # DQN on the suite's own envs (not tuned; docs/agents/neural.md "DQN"): rl-baselines3-zoo's
@@ -45,6 +46,17 @@ def tuned_file(env: str) -> Path:
 def tuned_name(env: str, base: str) -> str:
     """The name of a study's preset run on preset ``base`` of ``env``."""
     return TUNED if base == default_preset(env) else f"{base}-{TUNED}"
+
+
+def check_preset_name(env: str, agent: str, name: str) -> None:
+    """A study's preset may take any plain name but one of the domain's own presets of ``agent``
+    (it would hide it); rewriting an earlier study's preset of that name is allowed."""
+    from trl_dgpq.envs import domain, split_name
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
+        raise ValueError(f"a preset name is letters, digits and _ . - (not first), got {name!r}")
+    if name in (domain(env).presets(agent, split_name(env)[1]) or {}):
+        raise ValueError(f"{name!r} is a preset of {agent} on {env} in its domain's presets.py: "
+                         "choose another name for the study's")
 
 
 def tuned_entries(env: str) -> dict:

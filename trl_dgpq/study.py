@@ -43,7 +43,7 @@ from trl_dgpq.analysis.runs import load_run
 from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import classes, resolve_config, split_overrides
 from trl_dgpq.config import find_leaf, from_dict, setting, to_dict
-from trl_dgpq.presets import preset_overrides, tuned_name, write_tuned
+from trl_dgpq.presets import check_preset_name, preset_overrides, tuned_name, write_tuned
 from trl_dgpq.tuning import TUNING_SEEDS, check_tuning_seeds, parse_range, search_space, suggest, with_ranges
 
 HOST = socket.gethostname()
@@ -441,22 +441,25 @@ class Study:
         return (f"best: trial {best.number}, {self.objective.name} {best.value:.6g} ({better} is better, IQM over "
                 f"{len(seeds)} seeds) with {shown(best.user_attrs['settings'])}; {tally}")
 
-    def write_preset(self) -> Path:
-        """The best trial as the ``tuned`` preset of this env and agent (``<preset>-tuned`` if the
-        study ran on another than the env's default): the preset the study ran on, the settings
-        given to it and the trial's over it, with where it came from."""
+    def write_preset(self, name: Optional[str] = None) -> Tuple[str, Path]:
+        """The best trial as preset ``name`` of this env and agent (by default ``tuned``, or
+        ``<preset>-tuned`` if the study ran on another than the env's default): the preset the
+        study ran on, the settings given to it and the trial's over it, with where it came from.
+        Returns the name and the file written."""
         from trl_dgpq.collectors.runner import provenance
+        run = self.config["run"]
+        name = name or tuned_name(run["env"], run["preset"])
+        check_preset_name(run["env"], run["agent"], name)
         study = self.load()
         ended = self.ended(study.get_trials(deepcopy=False))
         if not ended["complete"]:
             raise ValueError("no trial has completed: there is no best trial to write as a preset")
         best = study.best_trial
-        run = self.config["run"]
         _, base = preset_overrides(run["env"], run["agent"], run["preset"])
         given = split_overrides(self.given_agent_env(), *classes(run))
         sections = {s: {**base[s], **{k: self.value_of(s, k) for k in given[s]}} for s in ("env", "agent")}
         sections["agent"].update(best.user_attrs["settings"])
-        return write_tuned(run["env"], run["agent"], tuned_name(run["env"], run["preset"]), sections, dict(
+        return name, write_tuned(run["env"], run["agent"], name, sections, dict(
             study=self.url, study_name=self.name, trial=best.number, trials=sum(map(len, ended.values())),
             objective=self.objective.name, direction=self.objective.direction, value=best.value,
             base_preset=run["preset"], budget=dict(episodes=run["episodes"], env_steps=run["env_steps"]),

@@ -4,6 +4,7 @@
     python scripts/tune.py --env square --agent dqn --env-steps 10000 --trials 40 --out runs/tune-square-dqn
     python scripts/tune.py --out runs/tune-square-dqn --trials 60              # add 20 trials to that study
     python scripts/tune.py --out runs/tune-square-dqn --write-preset           # best trial -> preset "tuned"
+    python scripts/tune.py --out runs/tune-square-dqn --write-preset late      # ... or preset "late"
     python scripts/train.py --env square --agent dqn --preset tuned --seeds 10 --env-steps 10000
 
 The run settings are train's (--episodes, --env-steps, --seeds, --preset, --set KEY=VALUE,
@@ -52,10 +53,10 @@ def make_parser() -> Parser:
     p.add_argument("--storage", metavar="URL", default=None,
                    help="Optuna storage instead of sqlite:///DIR/study.db: processes on other machines or Ray tasks "
                         "fill the same study when given the same URL (and DIR, on a shared filesystem)")
-    p.add_argument("--write-preset", action="store_true",
-                   help="write the best trial as the preset 'tuned' of this env and agent, '<preset>-tuned' if the "
-                        "study ran on another preset than the env's default (envs/<domain>/tuned.json, with its "
-                        "provenance): train.py --preset tuned")
+    p.add_argument("--write-preset", nargs="?", const="", default=None, metavar="NAME",
+                   help="write the best trial as a preset of this env and agent (envs/<domain>/tuned.json, with its "
+                        "provenance): NAME, or without it 'tuned', '<preset>-tuned' if the study ran on another "
+                        "preset than the env's default; train.py --preset NAME")
     p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
                    help="any run, env or agent setting, e.g. --set gp.noise_var=0.2 (repeatable)")
     add_setting_flags(p, {**{leaf.key: [("TuneConfig", leaf)] for leaf in leaves(TuneConfig)}, **cli_owners()})
@@ -93,14 +94,12 @@ def _main(argv=None) -> int:
               f"continue with: {command('tune')} --out {args.out}{storage} --trials {trials}", file=sys.stderr)
         return 128 + signum
     print(study.summary(trials), flush=True)
-    if args.write_preset:
+    if args.write_preset is not None:
         try:
-            path = study.write_preset()
+            name, path = study.write_preset(args.write_preset or None)
         except ValueError as err:
             parser.error(str(err))
-        from trl_dgpq.presets import tuned_name
         run = study.config["run"]
-        name = tuned_name(run["env"], run["preset"])
         print(f"wrote preset '{name}' to {path}: {command('train')} --env {run['env']} --agent {run['agent']} "
               f"--preset {name}")
     return 0
