@@ -25,6 +25,13 @@ Rewards:
   "shortfall" (default): r_k = -[n_k (S_0 - exec_k) + lambda sigma^2 tau x_k^2] / reward_scale,
       so the return is -ac_cost / reward_scale and its expectation is maximised
       exactly by the AC schedule (rewards in $M with the default scale).
+  "impact": r_k = -[n_k (eps + (eta / tau) n_k) + gamma n_k x_k + lambda sigma^2 tau x_k^2] / reward_scale,
+      what trade k costs in impact (spread, temporary impact, its permanent impact on the x_k
+      still held) and risk, with no price noise: the return is -(ac_cost + sigma sqrt(tau)
+      sum_k xi_k x_k) / reward_scale, and as x_k is chosen before xi_k the sum has mean zero
+      for every policy, so the expected return, and the best policy, are the shortfall's. Each
+      reward is a function of (x_{k-1}, n_k): a learner whose state is (trades left, shares
+      left) meets a deterministic MDP (docs/domains/liquidation.md, "Drift").
   "utility-ratio" (the seed report's): (|U(x_{k-1})| - |U(x_k)|) / |U(x_{k-1})| with
       U(x) = E*(x) + lambda V*(x) over the full horizon. Not aligned with the
       objective: selling everything at once earns the largest single reward.
@@ -53,7 +60,7 @@ from trl_dgpq.rng import box_muller
 from ..base import SeedBatchedEnv
 from .almgren_chriss import ACModel
 
-REWARDS = ("shortfall", "utility-ratio")
+REWARDS = ("shortfall", "impact", "utility-ratio")
 RETURNS = 6  # log-returns in the observation
 PRICE_STREAM = 5  # the price noise's stream id (trl_dgpq.rng: ids 1-7 are taken)
 
@@ -62,6 +69,7 @@ PRICE_STREAM = 5  # the price noise's stream id (trl_dgpq.rng: ids 1-7 are taken
 class LiquidationConfig:
     """Almgren-Chriss liquidation (SPEC 3.2; defaults: the course environment)."""
     reward: str = setting("shortfall", "shortfall: minus each trade's risk-adjusted cost / reward_scale; "
+                                       "impact: the same without the price noise's term (mean zero); "
                                        "utility-ratio: the seed report's", choices=REWARDS)
     reward_scale: float = setting(1e6, "dollars per unit of the shortfall reward", within="(0, inf)")
     shares: int = setting(1_000_000, "shares to sell, X", within="(0, inf)")
@@ -211,6 +219,9 @@ class LiquidationEnv(SeedBatchedEnv):
         risk = m.lam * m.sigma2 * m.tau * x_new * x_new
         if cfg.reward == "shortfall":
             reward = -(trade_cost + risk) / cfg.reward_scale
+        elif cfg.reward == "impact":
+            impact = n * (m.eps * torch.sign(n) + (m.eta / m.tau) * n) + m.gamma * n * x_new
+            reward = -(impact + risk) / cfg.reward_scale
         else:
             u_prev, u_now = m.utility(x).abs(), m.utility(x_new).abs()
             reward = (u_prev - u_now) / u_prev
