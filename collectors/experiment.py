@@ -270,7 +270,10 @@ def run_experiment(config: dict, progress: bool = True, max_total_steps: Optiona
     run = load_sections(config)[0]
     collector = OnlineCollector(env, agent, run.episodes, max_total_steps=max_total_steps,
                                 progress=progress, desc=describe(config), env_steps=run.env_steps)
-    df = collector.run()
+    try:
+        df = collector.run()
+    finally:  # now, not when collected: a push env holds a physics client per seed
+        env.close(raise_if_closed=False)
     df.attrs["step_seconds"] = collector.step_seconds
     return df
 

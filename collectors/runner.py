@@ -535,6 +535,13 @@ def _run(config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: 
     run = load_sections(config)[0]  # with defaults for settings newer than a recorded config
     use_threads(config)
     env, agent = build(config)
+    try:
+        return _collect(run, config, folder, checkpoint, progress, env, agent)
+    finally:  # now, not when the garbage collector gets to it: a study runs many trials in one process,
+        env.close(raise_if_closed=False)  # and each push env holds a physics client per seed
+
+
+def _collect(run, config: dict, folder: RunFolder, checkpoint: Optional[dict], progress: bool, env, agent):
     collector = OnlineCollector(env, agent, run.episodes, progress=progress, desc=describe(config),
                                 env_steps=run.env_steps, before_step=memory_guard(agent, run.max_memory),
                                 time_steps=False)  # its memory is flat however long it runs (soak.py)

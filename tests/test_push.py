@@ -330,3 +330,26 @@ def test_push_figure_has_a_title_and_whole_episodes(tmp_path, saved_figures):
         folder / "episodes.csv", index=False)
     figures([load_run(folder)], ["oracle"], tmp_path)
     assert saved_figures.problems("push.png") == []
+
+
+def test_a_run_disconnects_its_clients_when_it_ends_not_when_collected(tmp_path):
+    """A study runs trial after trial in one process: each run's physics clients are released as
+    it ends (the garbage collector, off here, may never free an env caught in a cycle)."""
+    import gc
+
+    from trl_dgpq.collectors import runner
+    from trl_dgpq.collectors.experiment import run_experiment
+
+    def connected():
+        return sum(pb.isConnected(i) for i in range(512))
+    before = connected()
+    gc.disable()
+    try:
+        for k in range(2):
+            config = resolve_config(env="push", agent="random", seeds=[0, 1, 2], episodes=1, max_steps=3)
+            runner.start(config, runner.RunFolder.create(str(tmp_path / f"run{k}"), "x"), progress=False)
+            assert connected() == before
+            run_experiment(config, progress=False)
+            assert connected() == before
+    finally:
+        gc.enable()
