@@ -345,3 +345,41 @@ def test_impact_reward_has_the_shortfalls_mean_return_for_a_fixed_schedule():
     assert returns("impact", price_noise=False) == pytest.approx(returns("shortfall", price_noise=False), rel=1e-12)
     gap = returns("shortfall") - returns("impact")
     assert abs(gap.mean()) < 3 * gap.std() / math.sqrt(len(gap)) and gap.std() > 0.1
+
+
+def test_pace_is_shares_left_over_trades_left_and_off_by_default():
+    assert LiquidationEnv([0]).reset()["observation"].shape == (1, 8)
+    env = LiquidationEnv([0], trades=3, shares=1000, pace=True, action_levels=5)
+    check_env_specs(env)
+    td = env.reset()
+    seen = [td["observation"][0, -1].item()]
+    for a in (2, 2, 0):                                   # half, half of the rest, the rest
+        td = env.step(td.set("action", torch.tensor([a])))
+        seen.append(td["next", "observation"][0, -1].item())
+        td = env.step_mdp(td)
+    assert seen == pytest.approx([1 / 3, 0.5 / 2, 0.25 / 1, 0.0])
+
+
+def test_the_optimal_cost_to_go_is_lipschitz_in_shares_and_pace_not_in_time():
+    """Why ``pace`` (docs/domains/liquidation.md, "Drift"): V*(x, k), the AC optimum's cost of
+    selling x (of X) in k trades ($M; k = 1 sells at once), changes by at most ~2.5 per unit of
+    L1 distance in (x, x / k), but by ~69 in (k / N, x), the state DGPQ saw: an envelope with
+    L_Q below that is not optimistic near the horizon's end."""
+    base = ACModel.from_config(LiquidationConfig())
+
+    def v(x, k):
+        if k == 1:
+            n = x * base.shares
+            return (base.eps * n + base.eta / base.tau * n * n) / 1e6
+        return ACModel(**{**base.__dict__, "shares": x * base.shares, "trades": k, "horizon": k * base.tau}).utility() / 1e6
+    x, k = torch.meshgrid(torch.arange(1, 21, dtype=D) / 20, torch.arange(1, 61, dtype=D), indexing="ij")
+    x, k = x.flatten(), k.flatten()
+    value = torch.tensor([v(a, int(b)) for a, b in zip(x.tolist(), k.tolist())], dtype=D)
+    assert value.max().item() == pytest.approx(2.5625) and v(1.0, 60) == pytest.approx(U_STAR / 1e6)
+
+    def lipschitz(*coords):
+        f = torch.stack(coords, -1)
+        d = torch.cdist(f, f, p=1)
+        return ((value[:, None] - value[None, :]).abs() / d.fill_diagonal_(torch.inf)).max().item()
+    assert 2.4 < lipschitz(x, x / k) < 2.6
+    assert lipschitz(k / 60, x) > 60

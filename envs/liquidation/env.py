@@ -8,7 +8,7 @@ sells everything. Trade k executes at S_{k-1} - (eps sign(n_k) + (eta / tau) n_k
 - gamma n_k. The episode terminates when no shares are left.
 
 Observation (8): the last six log-returns log(S_k / S_{k-1}), trades left / N,
-shares left / X. Also in every step's TensorDict, by key: ``trades_left`` (a count)
+shares left / X; with ``pace`` (9) also (shares left / X) / trades left. Also in every step's TensorDict, by key: ``trades_left`` (a count)
 and ``shares_left`` (shares), for agents that follow a schedule, and, as running totals of the
 episode (the runner puts their final values in the episode's CSV row):
 ``implementation_shortfall`` = X S_0 - sum n_k exec_k and ``ac_cost`` = shortfall +
@@ -89,6 +89,9 @@ class LiquidationConfig:
     level_noise: float = setting(0.0, "sigma of OU noise on the chosen level's fraction (0: none)",
                                  within="[0, inf)")
     level_noise_theta: float = setting(0.15, "theta of that OU noise", within="[0, inf)")
+    pace: bool = setting(False, "append the pace, (shares left / X) / trades left, to the observation: the "
+                                "optimal cost-to-go is 2.5-Lipschitz (L1, $M) in (shares left, pace) and "
+                                "69-Lipschitz in (trades left, shares left)")
 
     @property
     def max_steps(self) -> int:
@@ -103,7 +106,8 @@ class LiquidationConfig:
 
 
 class LiquidationEnv(SeedBatchedEnv):
-    """TorchRL env, ``batch_size=[len(seeds)]``; observations float64 ``(S, 8)``."""
+    """TorchRL env, ``batch_size=[len(seeds)]``; observations float64 ``(S, 8)``, ``(S, 9)``
+    with ``pace``."""
 
     Config = LiquidationConfig
     action_hint = "liquidation: action_levels=0 gives a continuous sell fraction, >= 2 discrete levels"
@@ -133,7 +137,7 @@ class LiquidationEnv(SeedBatchedEnv):
     def _specs(cls, cfg, S, device):
         f64 = dict(dtype=torch.float64, device=device)
         observation = Composite(
-            observation=Unbounded(shape=(S, RETURNS + 2), **f64),
+            observation=Unbounded(shape=(S, RETURNS + 2 + cfg.pace), **f64),
             trades_left=Bounded(0.0, float(cfg.trades), shape=(S,), **f64),
             shares_left=Bounded(0.0, float(cfg.shares), shape=(S,), **f64),
             implementation_shortfall=Unbounded(shape=(S,), **f64),
@@ -150,7 +154,11 @@ class LiquidationEnv(SeedBatchedEnv):
     def _observation(self, trades_done):
         cfg = self.cfg
         left = (cfg.trades - trades_done).to(torch.float64)
-        obs = torch.cat([self.returns, (left / cfg.trades)[:, None], (self.x / cfg.shares)[:, None]], -1)
+        held = self.x / cfg.shares
+        obs = [self.returns, (left / cfg.trades)[:, None], held[:, None]]
+        if cfg.pace:  # what each trade left would sell, evenly: where the cost-to-go's slopes are moderate
+            obs.append((held / left.clamp_min(1.0))[:, None])
+        obs = torch.cat(obs, -1)
         return self._td(observation=obs, trades_left=left, shares_left=self.x.clone(),
                         implementation_shortfall=self.shortfall.clone(), ac_cost=self.ac_cost.clone(),
                         optimal_ac_cost=self.optimal_ac_cost.clone(),
