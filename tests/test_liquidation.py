@@ -303,32 +303,33 @@ def test_a_checkpoint_from_before_optimal_ac_cost_loads_with_it_from_its_prices(
 
 
 def test_impact_reward_by_hand_is_the_shortfall_without_its_price_noise_term():
-    """reward "impact" on two trades (600 then 400 of 1,000 shares) by hand: each trade's spread and
-    temporary impact, its permanent impact on what is still held, the risk term; the same on
-    every price path (two seeds). The shortfall's return on the same path differs by exactly
-    sigma sqrt(tau) xi_1 x_1, the mark-to-market of the 400 shares held over the first interval."""
-    kw = dict(seeds=[0, 1], trades=2, horizon=2.0, shares=1000, reward_scale=1.0)
+    """reward "impact" on three trades two days apart (600 of 1,000 shares, none, the rest) by
+    hand: each trade's spread and temporary impact, its permanent impact on what is still held,
+    the risk term; the same on every price path (two seeds). The shortfall's return on the same
+    path differs by exactly sigma sqrt(tau) (xi_1 x_1 + xi_2 x_2), the mark-to-market of the 400
+    shares held over the first two intervals."""
+    kw = dict(seeds=[0, 1], trades=3, horizon=6.0, shares=1000, reward_scale=1.0)
     m = LiquidationEnv(**kw).model
-    a = m.eta / m.tau
-    first = 600 * (m.eps + a * 600) + m.gamma * 600 * 400 + m.lam * m.sigma2 * m.tau * 400 ** 2
-    second = 400 * (m.eps + a * 400)
+    assert m.tau == 2.0
+    a, risk = m.eta / m.tau, m.lam * m.sigma2 * m.tau * 400 ** 2
+    by_hand = [600 * (m.eps + a * 600) + m.gamma * 600 * 400 + risk, risk, 400 * (m.eps + a * 400)]
     returns = {}
     for reward in ("impact", "shortfall"):
         env = LiquidationEnv(**kw, reward=reward)
         td = env.reset()
         got = []
-        for fraction in (0.6, 0.0):                        # the last trade sells the rest
+        for fraction in (0.6, 0.0, 0.0):                   # the last trade sells the rest
             td = env.step(td.set("action", torch.full((2, 1), fraction, dtype=D)))
             got.append(td["next", "reward"][:, 0])
             td = env.step_mdp(td)
         returns[reward] = sum(got)
         if reward == "impact":
-            assert got[0].tolist() == pytest.approx([-first] * 2, rel=1e-12)
-            assert got[1].tolist() == pytest.approx([-second] * 2, rel=1e-12)
-        xi1 = env.xi[:, 0]
-    assert xi1[0] != xi1[1]
+            for step, cost in zip(got, by_hand):
+                assert step.tolist() == pytest.approx([-cost] * 2, rel=1e-12)
+        xi = env.xi[:, :2].sum(-1)
+    assert xi[0] != xi[1]
     assert (returns["shortfall"] - returns["impact"]).tolist() == pytest.approx(
-        (math.sqrt(m.sigma2 * m.tau) * xi1 * 400).tolist(), rel=1e-9)
+        (math.sqrt(m.sigma2 * m.tau) * xi * 400).tolist(), rel=1e-9)
 
 
 def test_impact_reward_has_the_shortfalls_mean_return_for_a_fixed_schedule():
