@@ -356,6 +356,9 @@ def test_a_study_writes_its_preset_under_the_name_given_and_never_over_a_hand_se
     assert tune.main(["--out", str(out), "--trials", "1", "--write-preset"]) == 0
     assert "wrote preset 'tuned'" in capsys.readouterr().out
     assert set(json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]) == {"late", "tuned"}
+    presets.check_preset_name("square", "dqn", "Late_2.b-c")                 # capitals, digits, _ . - are fine
+    with pytest.raises(ValueError, match="is a preset of dqn on gym:CartPole-v1"):  # the id's own presets
+        presets.check_preset_name("gym:CartPole-v1", "dqn", "zoo")
 
 
 # ---------------------------------------------------------------- --search: ranges for another scale
