@@ -209,7 +209,7 @@ def test_help_gives_each_configs_default_for_a_shared_flag():
     square, liquidation = text.split("--reward REWARD ")[1].split(" --")[0].split("; Liquidation: ")
     assert square.startswith("Square: shaped: 2 - |goal - s|_2 per step") and square.endswith("[shaped] {shaped, paper}")
     assert liquidation.startswith("shortfall: minus each trade's") and liquidation.endswith(
-        "[shortfall] {shortfall, utility-ratio}")
+        "[shortfall] {shortfall, impact, utility-ratio}")
 
 
 def test_an_old_dotted_path_names_the_setting_it_is_now():
