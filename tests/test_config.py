@@ -206,9 +206,9 @@ def test_help_gives_each_configs_default_for_a_shared_flag():
     """--gamma is DGPQ's (0.01) and the neural agents' (0.99); --reward is the square's and liquidation's."""
     text = " ".join(train.make_parser().format_help().split())
     assert "[DGPQ: 0.01; DDPG: 0.99; TD3: 0.99; DQN: 0.99]" in text
-    square, liquidation = text.split("--reward REWARD ")[1].split(" --")[0].replace("- ", "-").split("; Liquidation: ")
+    square, liquidation = text.split("--reward REWARD ")[1].split(" --")[0].split("; Liquidation: ")
     assert square.startswith("Square: shaped: 2 - |goal - s|_2 per step") and square.endswith("[shaped] {shaped, paper}")
-    assert liquidation.startswith("shortfall: minus each trade's") and liquidation.endswith(
+    assert liquidation.startswith("shortfall: minus each trade's") and liquidation.replace("- ", "-").endswith(
         "[shortfall] {shortfall, impact, utility-ratio}")
 
 
