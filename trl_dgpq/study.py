@@ -38,7 +38,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from trl_dgpq.analysis.objective import Objective, objective, stage
+from trl_dgpq.analysis.objective import at_budget_objective, objective, stage
 from trl_dgpq.analysis.runs import load_run
 from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import classes, resolve_config, split_overrides
@@ -179,9 +179,8 @@ class Study:
         # would otherwise be scored on another scale than the old ones and compared with them
         scored = request.setdefault("scored", self.objective.column)
         if scored != self.objective.column:
-            self.objective = Objective(f"{scored} at budget", f"{scored} at budget (mean of each seed's last "
-                                       f"{self.tune.window} episodes; the env's measure when the study began), IQM "
-                                       "over seeds", self.objective.direction, None, scored, self.tune.window)
+            self.objective = at_budget_objective(scored, scored, self.objective.direction, self.tune.window,
+                                                 "; the env's measure when the study began")
         agent_cls = classes(self.config["run"])[1]
         given = split_overrides(self.given_agent_env(), *classes(self.config["run"]))
         space = with_ranges(search_space(agent_cls), self.tune.search)

@@ -61,8 +61,14 @@ def objective(env: str, kind: str = "report", window: int = WINDOW) -> Objective
         return Objective("steps to threshold", f"steps to threshold ({threshold.text}; a seed that never met it: "
                          "the budget), IQM over seeds", "minimize", threshold, threshold.column)
     column, label = d.measure(env_id)
-    return Objective(f"{label} at budget", f"{label} at budget (mean of each seed's last {window} episodes), IQM "
-                     "over seeds", "minimize" if d.lower_is_better(env_id) else "maximize", None, column, window)
+    return at_budget_objective(column, label, "minimize" if d.lower_is_better(env_id) else "maximize", window)
+
+
+def at_budget_objective(column: str, label: str, direction: str, window: int, note: str = "") -> Objective:
+    """``column`` at the budget: each seed's mean over its last ``window`` episodes, IQM over
+    seeds (``note``: said after the window, e.g. why this column)."""
+    return Objective(f"{label} at budget", f"{label} at budget (mean of each seed's last {window} episodes{note}), "
+                     "IQM over seeds", direction, None, column, window)
 
 
 def stage(run: Run, lengths: dict) -> Run:
