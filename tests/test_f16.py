@@ -330,6 +330,28 @@ def test_the_observation_is_the_state_over_the_envelopes_half_widths():
     assert nxt["observation"][0].tolist() == [x[0] / 333.3, x[1] / 77.7, x[2] / 0.33, x[3] / 0.33, x[4] / 0.77]
 
 
+
+def test_observe_climb_appends_the_climb_rate_over_its_largest_value_in_the_envelope():
+    """502 ft/s x (theta - alpha) / (2 x 502 x attitude_max), by hand: at the start alpha =
+    theta, so 0; after a nose-down step, from the state's own theta and alpha. The first five
+    coordinates are those without it, and the spec bounds six."""
+    from torchrl.envs.utils import check_env_specs
+    env = F16Env([0, 1], observe_climb=True, attitude_max=0.4)
+    assert env.observation_spec["observation"].shape == (2, 6)
+    check_env_specs(env)
+    td = env.reset()
+    assert td["observation"][:, 5].tolist() == [0.0, 0.0]
+    td["action"] = torch.tensor([2, 0])
+    nxt = env.step(td)["next"]
+    x = nxt["state"]
+    plain = F16Env([0], attitude_max=0.4)
+    for i in range(2):
+        assert nxt["observation"][i, 5].item() == pytest.approx(502.0 * (x[i, 3] - x[i, 2]).item() / (2 * 502.0 * 0.4),
+                                                                 rel=1e-12)
+        assert torch.equal(nxt["observation"][i, :5], plain.observation(x[i:i + 1])[0])
+    assert (nxt["observation"][:, 5] != 0).all()
+    assert plain.observation(x).shape == (2, 5)
+
 def test_the_elevator_deflection_scales_the_control():
     """elevator_deg 0.7: actions -1, 0, +1 deflect -0.7, 0, +0.7 degrees (Runge-Kutta by hand);
     the reward charges |action|, not degrees."""

@@ -299,7 +299,7 @@ def optimism(folder: Path, on: str = "hold", episodes: int = 8, rollouts: int = 
         raise ValueError(f"{folder} is not a DGPQ run (its agent has no Q̂)")
     states = visited(env.cfg, on, episodes, seed=9000)
     q = lqr_q(env.cfg, states, agent.cfg.gamma, rollouts)
-    f = agent.features(states / env.scale)
+    f = agent.features(env.observation(states))
     qhat = torch.stack([agent.qhat(x[None].expand(agent.S, -1)) for x in f])    # (N, S, A)
     top = q.sort(1, descending=True).values
     pulse = q.argmax(1) != 1

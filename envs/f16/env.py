@@ -36,7 +36,10 @@ What GWH14 do not state, chosen here (and why):
   decisions. The presets' "flight" (issue 28) decides every 0.25 s;
 - the observation is the state divided by the envelope's half-widths (V_T by
   ``vt_scale``), so every component is in [−1, 1] while the episode runs. The state in
-  its own units is in each step's TensorDict as ``state``.
+  its own units is in each step's TensorDict as ``state``. ``observe_climb`` (issue 28)
+  appends ḣ = V_T0 (θ − α) divided by its largest value inside the envelope, 2 V_T0
+  ``attitude_max``: a function of the state, so no information is added, but a metric
+  can then weigh the two quantities the reward charges (h − h_d and ḣ) and nothing else.
 """
 from __future__ import annotations
 
@@ -49,7 +52,7 @@ from trl_dgpq.config import setting
 from trl_dgpq.rng import stream_id
 
 from ..base import SeedBatchedEnv
-from .dynamics import climb_rate, discretise, rows_times
+from .dynamics import V_T0, climb_rate, discretise, rows_times
 
 
 @dataclass
@@ -72,6 +75,9 @@ class F16Config:
     attitude_max: float = setting(0.5, "envelope: largest |alpha| and |theta|, rad", within="(0, 1.5]")
     rate_max: float = setting(1.0, "envelope: largest |q|, rad/s", within="(0, inf)")
     max_steps: int = setting(200, "decisions per episode (truncation)", within="[1, inf)")
+    observe_climb: bool = setting(False, "append the climb rate, V_T0 (theta - alpha) / (2 V_T0 attitude_max), "
+                                         "to the observation (6 coordinates): a metric can then weigh altitude "
+                                         "error and climb rate alone, the two the reward charges")
 
     def cross_check(self) -> None:
         if (abs(self.h0) + self.h0_spread >= self.h_max
@@ -82,7 +88,8 @@ class F16Config:
 
 
 class F16Env(SeedBatchedEnv):
-    """TorchRL env, ``batch_size=[len(seeds)]``; observations float64 ``(S, 5)`` in [−1, 1]."""
+    """TorchRL env, ``batch_size=[len(seeds)]``; observations float64 ``(S, 5)`` in [−1, 1]
+    (``(S, 6)`` with ``observe_climb``)."""
 
     Config = F16Config
     action_names = ("nose-up", "hold", "nose-down")
@@ -104,14 +111,22 @@ class F16Env(SeedBatchedEnv):
     @classmethod
     def _specs(cls, cfg, S, device):
         f64 = dict(dtype=torch.float64, device=device)
-        observation = Composite(observation=Bounded(-1.0, 1.0, shape=(S, 5), **f64),
+        observation = Composite(observation=Bounded(-1.0, 1.0, shape=(S, 5 + cfg.observe_climb), **f64),
                                 state=Unbounded(shape=(S, 5), **f64), shape=(S,), device=device)
         return observation, Categorical(3, shape=(S,), device=device), Unbounded(shape=(S, 1), **f64)
 
     def _observe(self):
         """The scaled observation, and the state in its units by key ``state`` (for the
         scripted controllers)."""
-        return self._td(observation=self.state / self.scale, state=self.state.clone())
+        return self._td(observation=self.observation(self.state), state=self.state.clone())
+
+    def observation(self, state: torch.Tensor) -> torch.Tensor:
+        """The observation of states (N, 5) in the env's units."""
+        obs = state / self.scale
+        if self.cfg.observe_climb:  # inside the envelope |theta - alpha| <= 2 attitude_max
+            climb = climb_rate(state) / (2.0 * V_T0 * self.cfg.attitude_max)
+            obs = torch.cat([obs, climb[:, None]], -1)
+        return obs
 
     def _initial(self, mask):
         c = self.cfg
