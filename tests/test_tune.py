@@ -321,7 +321,7 @@ def test_the_best_trial_round_trips_as_the_tuned_preset(tmp_path, monkeypatch):
     monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
     out = tmp_path / "study"
     study = Study.open(out, None, {"env": "square", "agent": "dqn", "preset": "noisy", "episodes": "4",
-                                   "gamma": "0.8"}, {})
+                                   "gamma": "0.8"}, {"first": "sampled"})
     best = {"lr": 0.003, "hidden": [128, 128], "eps_end": 0.07, "exploration_steps": 900}
     for value, settings in [(50.0, {"lr": 0.0002}), (20.0, best)]:
         study.load().add_trial(optuna.trial.create_trial(value=value, user_attrs={"settings": settings}))
@@ -397,3 +397,43 @@ def test_a_search_range_outside_the_space_is_refused_before_any_trial(tmp_path, 
         tune.main([*TINY, "--out", str(out), "--trials", "1", "--search", "gamma=0.5:0.9"])
     assert exc.value.code == 2 and "gamma is not in the agent's search space" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_the_first_trial_runs_the_base_presets_own_values_inside_their_ranges(tmp_path):
+    """Square DQN's default preset, shaped, is SMALL_DQN (lr 1e-3, (64, 64), target every 100, eps_end 0.05, batch 64,
+    buffer 10,000, 1 update every step): trial 0 runs those; its 2,000 exploration steps are
+    five budgets of 400, outside the range (at most half the budget), so TPE draws that one.
+    --first sampled draws them all."""
+    args = ["--env", "square", "--agent", "dqn", "--seeds", "1000-1000", "--env-steps", "400", "--stages", "1"]
+    assert tune.main([*args, "--out", str(tmp_path / "preset"), "--trials", "1"]) == 0
+    (first,) = trials_of(tmp_path / "preset")
+    settings = first.user_attrs["settings"]
+    assert {k: settings[k] for k in settings if k != "exploration_steps"} == dict(
+        lr=1e-3, hidden=[64, 64], target_update_interval=100, eps_end=0.05, batch_size=64, buffer_size=10_000,
+        train_freq=1, gradient_steps=1)
+    assert 20 <= settings["exploration_steps"] <= 200 and first.user_attrs["first"] == "preset shaped"
+    config = json.loads((tmp_path / "preset" / "trials" / "0000" / "config.json").read_text())
+    assert config["agent"]["lr"] == 1e-3 and config["agent"]["exploration_steps"] == settings["exploration_steps"]
+    assert tune.main([*args, "--out", str(tmp_path / "sampled"), "--trials", "1", "--first", "sampled"]) == 0
+    (drawn,) = trials_of(tmp_path / "sampled")
+    assert drawn.user_attrs["settings"]["lr"] != 1e-3 and "first" not in drawn.user_attrs
+
+
+def test_first_params_turn_back_into_the_values_by_each_ranges_suggest():
+    """Each range's params, fed to Optuna as a fixed trial, suggest the value back; a value outside
+    its range (or a setting not given) gives no param."""
+    from trl_dgpq.tuning import Choice, Uniform, first_params
+    space = {"a": LogUniform(0.1, 10.0), "b": Uniform(0.0, 1.0), "n": IntRange(10, 1_000, log=True),
+             "h": Choice(((64, 64), (256, 256))), "x": OfBudget(0.05, 0.5, otherwise=IntRange(500, 20_000)),
+             "far": LogUniform(1.0, 2.0), "missing": Uniform(0.0, 1.0)}
+    values = {"a": 0.3, "b": 0.25, "n": 77, "h": (256, 256), "x": 1_500, "far": 5.0}
+    params = first_params(space, values, 10_000)
+    assert params == {"a": 0.3, "b": 0.25, "n": 77, "h": "256,256", "x_fraction": 0.15}
+    study = optuna.create_study()
+    study.enqueue_trial(params)
+    trial = study.ask()
+    got = suggest(trial, space, 10_000)
+    assert {k: got[k] for k in values if k != "far"} == {k: v for k, v in values.items() if k != "far"}
+    assert 1.0 <= got["far"] <= 2.0
+    assert first_params(space, {"x": 1_500}, 0) == {"x": 1_500}   # a budget in episodes: its own count
+    assert first_params(space, {"x": 100}, 0) == {}                # ... outside IntRange(500, 20,000)

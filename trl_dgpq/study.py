@@ -44,7 +44,8 @@ from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import classes, resolve_config, split_overrides
 from trl_dgpq.config import find_leaf, from_dict, setting, to_dict
 from trl_dgpq.presets import check_preset_name, preset_overrides, tuned_name, write_tuned
-from trl_dgpq.tuning import TUNING_SEEDS, check_tuning_seeds, parse_range, search_space, suggest, with_ranges
+from trl_dgpq.tuning import (TUNING_SEEDS, check_tuning_seeds, first_params, parse_range, search_space, suggest,
+                             with_ranges)
 
 HOST = socket.gethostname()
 KEEP = (runner.CONFIG, runner.STATUS, runner.EPISODES)  # what an ended trial's folder keeps
@@ -73,11 +74,14 @@ class TuneConfig:
     window: int = setting(10, "episodes at the end of a trial's budget that the measure is averaged over (a "
                               "domain without a threshold, or --objective measure): more scores how a learner "
                               "ends rather than a lucky stretch", within="[1, inf)")
+    first: str = setting("preset", "the study's first trial: 'preset', the base preset's own values of the searched "
+                                   "settings (those inside their ranges), or 'sampled', as TPE draws it",
+                         choices=("preset", "sampled"))
     search: Tuple[str, ...] = setting((), "ranges that replace the agent's own, NAME=LOW:HIGH (log-uniform), comma-"
                                           "separated, e.g. lengthscale=1:30,eps1=0.1:3: for a domain whose metric "
                                           "or reward has another scale than the agent's search space assumes")
 
-    FIXED = ("sampler_seed", "stages", "prune_after", "objective", "search", "window")  # kept by the study from its first run
+    FIXED = ("sampler_seed", "stages", "prune_after", "objective", "search", "window", "first")  # kept by the study from its first run
 
     def cross_check(self) -> None:
         if list(self.stages) != sorted(set(self.stages)) or self.stages[-1] != 1:
@@ -208,9 +212,21 @@ class Study:
         check_tuning_seeds(request["config"]["run"]["seeds"])
         study = cls(out, url, request)
         Path(out).mkdir(parents=True, exist_ok=True)  # only once all is checked
-        optuna.create_study(study_name=name, storage=open_storage(url), load_if_exists=True,
-                            direction=study.objective.direction).set_user_attr("request", request)
+        created = optuna.create_study(study_name=name, storage=open_storage(url), load_if_exists=True,
+                                      direction=study.objective.direction)
+        created.set_user_attr("request", request)
+        if stored is None and study.tune.first == "preset":
+            study.enqueue_preset(created)
         return study
+
+    def enqueue_preset(self, study) -> None:
+        """The study's first trial runs the base preset's own values of the searched settings
+        (those inside their ranges): a study whose sampled trials all miss (a threshold none
+        meets scores them alike) still holds the setting it started from, and TPE its place."""
+        values = {k: self.value_of("agent", k) for k in self.space}
+        params = first_params(self.space, values, self.config["run"]["env_steps"])
+        if params:
+            study.enqueue_trial(params, user_attrs={"first": f"preset {self.config['run']['preset']}"})
 
     @staticmethod
     def stored_request(url: str, name: str) -> Optional[dict]:

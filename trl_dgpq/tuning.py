@@ -46,7 +46,11 @@ class Uniform:
         return trial.suggest_float(name, self.low, self.high, log=self.log)
 
     def contains(self, value, budget: int) -> bool:
-        return self.low <= value <= self.high
+        return isinstance(value, (int, float)) and self.low <= value <= self.high
+
+    def params(self, name: str, value, budget: int) -> dict:
+        """The Optuna parameters that ``suggest`` turns back into ``value``."""
+        return {name: float(value)}
 
 
 @dataclass(frozen=True)
@@ -66,6 +70,9 @@ class IntRange:
     def contains(self, value, budget: int) -> bool:
         return isinstance(value, int) and self.low <= value <= self.high
 
+    def params(self, name: str, value, budget: int) -> dict:
+        return {name: int(value)}
+
 
 @dataclass(frozen=True)
 class Choice:
@@ -81,7 +88,10 @@ class Choice:
         return next(o for o in self.options if self.label(o) == picked)
 
     def contains(self, value, budget: int) -> bool:
-        return value in self.options
+        return (tuple(value) if isinstance(value, list) else value) in self.options  # a config's widths: a list
+
+    def params(self, name: str, value, budget: int) -> dict:
+        return {name: self.label(tuple(value) if isinstance(value, list) else value)}
 
 
 @dataclass(frozen=True)
@@ -102,6 +112,11 @@ class OfBudget:
         if not budget:
             return self.otherwise.contains(value, budget)
         return max(1, math.floor(self.low * budget)) <= value <= math.ceil(self.high * budget)
+
+    def params(self, name: str, value, budget: int) -> dict:
+        if not budget:
+            return self.otherwise.params(name, value, budget)
+        return {f"{name}_fraction": min(max(value / budget, self.low), self.high)}
 
 
 def search_space(agent_cls) -> dict:
@@ -145,6 +160,17 @@ def with_ranges(space: dict, ranges) -> dict:
             raise ValueError(f"search range {text!r}: {name} is not in the agent's search space "
                              f"({', '.join(space)})")
         out[name] = r
+    return out
+
+
+def first_params(space: dict, values: dict, budget: int) -> dict:
+    """The Optuna parameters of a trial that runs ``values`` ({setting: value}, e.g. the base
+    preset's) for every setting of ``space`` whose value lies inside its range; the others are
+    left to the sampler."""
+    out = {}
+    for name, r in space.items():
+        if name in values and r.contains(values[name], budget):
+            out.update(r.params(name, values[name], budget))
     return out
 
 
