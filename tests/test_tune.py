@@ -437,3 +437,11 @@ def test_first_params_turn_back_into_the_values_by_each_ranges_suggest():
     assert 1.0 <= got["far"] <= 2.0
     assert first_params(space, {"x": 1_500}, 0) == {"x": 1_500}   # a budget in episodes: its own count
     assert first_params(space, {"x": 100}, 0) == {}                # ... outside IntRange(500, 20,000)
+    assert first_params(space, {"x": 400}, 4_000) == {"x_fraction": 0.1}  # a tenth of the budget, not the count
+    x = OfBudget(0.05, 0.5, otherwise=IntRange(500, 20_000))             # 200 to 2,000 of 4,000, ends inside
+    assert [x.contains(v, 4_000) for v in (199, 200, 2_000, 2_001)] == [False, True, True, False]
+    assert x.contains(1, 10) and not x.contains(0, 10)                   # at least one step of a tiny budget
+    # the ends of each range are inside; a config's widths come as a list
+    ends = {"a": 10.0, "b": 0.0, "n": 10, "h": [64, 64]}
+    assert first_params(space, ends, 0) == {"a": 10.0, "b": 0.0, "n": 10, "h": "64,64"}
+    assert first_params(space, {"a": 0.1, "b": 1.0, "n": 1_000}, 0) == {"a": 0.1, "b": 1.0, "n": 1_000}
