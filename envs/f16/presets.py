@@ -82,6 +82,11 @@ FLIGHT = dict(decision_steps=5, max_steps=40)
 # episodes 91-100, -130 at 901-1,000, -116 at 1,401-1,500; L_Q 10 -337, -259, -207; DQN (small, gamma
 # 0.9) -229, -115, -88; LQR -60.5, PD -73, nothing -135. DGPQ L_Q 5 lengthened to 3,000: -104 at 2,401-2,500,
 # -99 at 2,901-3,000 (one seed of ten near -250).
+# On flight-05 with --observe-climb and the metric on (h per 25 ft, hdot per 10 or 5 ft/s) alone
+# (state_scale (400, 0, 0, 0, 0, 150 or 300)), seeds 2000-2003 x 200 episodes, episodes 191-200: L_Q 5
+# holds (-136, both); L_Q 20 -152 and -218; the first lengthened to 1,000 holds (-135 at 901-1,000, Q̂ ~860
+# pairs): the pulse's advantage depends on alpha and q, which that metric merges (Q's slope up to 470 per
+# unit). Its 30-trial study (the flight-05 study's ranges): best -132.7, nothing better than holding.
 FLIGHT_05 = dict(decision_steps=10, max_steps=20, h_max=10_000.0, attitude_max=1.5, rate_max=10.0)
 
 PRESETS = {
