@@ -445,3 +445,64 @@ def test_first_params_turn_back_into_the_values_by_each_ranges_suggest():
     ends = {"a": 10.0, "b": 0.0, "n": 10, "h": [64, 64]}
     assert first_params(space, ends, 0) == {"a": 10.0, "b": 0.0, "n": 10, "h": "64,64"}
     assert first_params(space, {"a": 0.1, "b": 1.0, "n": 1_000}, 0) == {"a": 0.1, "b": 1.0, "n": 1_000}
+
+
+def test_validate_runs_the_best_trials_and_the_first_again_on_other_seeds(tmp_path, capsys):
+    """--validate 1: the best trial and trial 0 (the base preset's) rerun at the full budget on
+    the validation seeds; each value is the IQM (two seeds: their mean) of each seed's mean
+    steps per episode over its last 10 episodes within the budget (a run in episodes: the
+    fewest steps a seed ran), by hand from the run's own rows. Asked again,
+    nothing reruns; overlapping the tuning seeds is refused."""
+    out = tmp_path / "study"
+    args = ["--env", "square", "--agent", "dgpq", "--seeds", "1000-1000", "--episodes", "3", "--stages", "1",
+            "--objective", "measure", "--out", str(out)]
+    assert tune.main([*args, "--trials", "3"]) == 0
+    trials = trials_of(out)
+    best = min(trials, key=lambda t: t.value)
+    capsys.readouterr()
+    assert tune.main(["--out", str(out), "--validate", "1", "--validation-seeds", "1005-1006"]) == 0
+    printed = capsys.readouterr().out
+    stored = optuna.load_study(study_name="study", storage=f"sqlite:///{out / 'study.db'}").user_attrs["validation"]
+    assert stored["seeds"] == [1005, 1006] and set(stored["values"]) == {str(best.number), "0"}
+    for number, value in stored["values"].items():
+        folder = out / "validation" / f"{int(number):04d}"
+        config = json.loads((folder / "config.json").read_text())
+        assert config["run"]["seeds"] == [1005, 1006] and config["run"]["episodes"] == 3
+        trial = trials[int(number)]
+        assert {k: config["agent"]["gp"].get(k, config["agent"].get(k)) for k in trial.user_attrs["settings"]} == \
+            trial.user_attrs["settings"]
+        rows = pd.read_csv(folder / "episodes.csv")
+        rows["env_steps"] = rows.groupby("seed")["steps"].cumsum()
+        budget = rows.groupby("seed")["env_steps"].max().min()   # in episodes: the fewest steps a seed ran
+        kept = rows[rows["env_steps"] <= budget]
+        assert value == pytest.approx(kept.groupby("seed")["steps"].mean().mean())
+        assert f"trial {number}: " in printed
+    assert sorted(p.name for p in (out / "validation" / "0000").iterdir()) == sorted(KEEP)
+    before = (out / "validation" / "0000" / "episodes.csv").stat().st_mtime_ns
+    assert tune.main(["--out", str(out), "--validate", "1", "--validation-seeds", "1005-1006"]) == 0
+    assert (out / "validation" / "0000" / "episodes.csv").stat().st_mtime_ns == before
+    with pytest.raises(SystemExit):
+        tune.main(["--out", str(out), "--validate", "1", "--validation-seeds", "1000-1001"])
+    assert "the study's own tuning seeds" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        tune.main(["--out", str(out), "--validate", "1", "--validation-seeds", "5-6"])
+    assert "reporting seeds" in capsys.readouterr().err
+
+
+def test_a_validated_study_writes_the_best_trial_on_the_validation_seeds(tmp_path, monkeypatch):
+    """Trial 0 is best on the tuning seeds (10 < 20), trial 1 on the validation seeds (30 < 40):
+    the preset is trial 1's, and its provenance says so."""
+    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+    study = Study.open(tmp_path / "study", None, {"env": "square", "agent": "dqn", "episodes": "4"},
+                       {"first": "sampled"})
+    for value, lr in [(10.0, 0.0002), (20.0, 0.003)]:
+        study.load().add_trial(optuna.trial.create_trial(value=value, user_attrs={"settings": {"lr": lr}}))
+    study.write_preset()
+    entry = json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]["tuned"]
+    assert entry["preset"]["agent"]["lr"] == 0.0002 and "validation" not in entry["provenance"]
+    study.load().set_user_attr("validation", {"seeds": [1005, 1006], "values": {"0": 40.0, "1": 30.0}})
+    study.write_preset()
+    entry = json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]["tuned"]
+    assert entry["preset"]["agent"]["lr"] == 0.003 and entry["provenance"]["trial"] == 1
+    assert entry["provenance"]["value"] == 20.0
+    assert entry["provenance"]["validation"] == {"seeds": [1005, 1006], "value": 30.0, "trials": [0, 1]}

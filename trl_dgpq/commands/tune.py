@@ -5,6 +5,8 @@
     python scripts/tune.py --out runs/tune-square-dqn --trials 60              # add 20 trials to that study
     python scripts/tune.py --out runs/tune-square-dqn --write-preset           # best trial -> preset "tuned"
     python scripts/tune.py --out runs/tune-square-dqn --write-preset late      # ... or preset "late"
+    python scripts/tune.py --out runs/tune-square-dqn --validate 3 --write-preset
+        # the 3 best trials and the base preset again on seeds 1005-1014; the preset: the best there
     python scripts/train.py --env square --agent dqn --preset tuned --seeds 10 --env-steps 10000
 
 The run settings are train's (--episodes, --env-steps, --seeds, --preset, --set KEY=VALUE,
@@ -37,7 +39,7 @@ from trl_dgpq.commands import command, prog
 from trl_dgpq.commands.train import Parser, add_setting_flags, attach_negative_lists, given_settings
 from trl_dgpq.config import leaves
 
-PROCESS_FLAGS = ("out", "storage", "write_preset", "set")
+PROCESS_FLAGS = ("out", "storage", "write_preset", "validate", "validation_seeds", "set")
 
 
 def tune_keys():
@@ -57,6 +59,12 @@ def make_parser() -> Parser:
                    help="write the best trial as a preset of this env and agent (envs/<domain>/tuned.json, with its "
                         "provenance): NAME, or without it 'tuned', '<preset>-tuned' if the study ran on another "
                         "preset than the env's default; train.py --preset NAME")
+    p.add_argument("--validate", type=int, default=0, metavar="K",
+                   help="once the trials are done, run the K best and the first (the base preset's) again on "
+                        "--validation-seeds at the full budget; --write-preset then writes the best there (five "
+                        "tuning seeds rank close settings by luck) [0: none]")
+    p.add_argument("--validation-seeds", default="1005-1014", metavar="SEEDS",
+                   help="tuning seeds for --validate, none of the study's own [1005-1014]")
     p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
                    help="any run, env or agent setting, e.g. --set gp.noise_var=0.2 (repeatable)")
     add_setting_flags(p, {**{leaf.key: [("TuneConfig", leaf)] for leaf in leaves(TuneConfig)}, **cli_owners()})
@@ -94,6 +102,20 @@ def _main(argv=None) -> int:
               f"continue with: {command('tune')} --out {args.out}{storage} --trials {trials}", file=sys.stderr)
         return 128 + signum
     print(study.summary(trials), flush=True)
+    if args.validate < 0:
+        parser.error(f"--validate must be >= 0, got {args.validate}")
+    if args.validate:
+        from trl_dgpq.collectors import runner
+        from trl_dgpq.collectors.experiment import parse_seeds
+        try:
+            study.validate(args.validate, parse_seeds(args.validation_seeds),
+                           log=lambda line: print(line, flush=True))
+        except ValueError as err:
+            parser.error(str(err))
+        except runner.Interrupted as err:
+            print(f"interrupted: continue with: {command('tune')} --out {args.out} --validate {args.validate} "
+                  f"--validation-seeds {args.validation_seeds}", file=sys.stderr)
+            return 128 + err.signum
     if args.write_preset is not None:
         try:
             name, path = study.write_preset(args.write_preset or None)
