@@ -481,12 +481,30 @@ def test_validate_runs_the_best_trials_and_the_first_again_on_other_seeds(tmp_pa
     before = (out / "validation" / "0000" / "episodes.csv").stat().st_mtime_ns
     assert tune.main(["--out", str(out), "--validate", "1", "--validation-seeds", "1005-1006"]) == 0
     assert (out / "validation" / "0000" / "episodes.csv").stat().st_mtime_ns == before
+    assert tune.main(["--out", str(out), "--validate", "1", "--validation-seeds", "1007-1007"]) == 0
+    again = optuna.load_study(study_name="study", storage=f"sqlite:///{out / 'study.db'}").user_attrs["validation"]
+    assert again["seeds"] == [1007] and set(again["values"]) == set(stored["values"])  # other seeds: run again
+    assert json.loads((out / "validation" / "0000" / "config.json").read_text())["run"]["seeds"] == [1007]
     with pytest.raises(SystemExit):
         tune.main(["--out", str(out), "--validate", "1", "--validation-seeds", "1000-1001"])
     assert "the study's own tuning seeds" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         tune.main(["--out", str(out), "--validate", "1", "--validation-seeds", "5-6"])
     assert "reporting seeds" in capsys.readouterr().err
+
+
+def test_bad_validation_seeds_are_refused_before_any_trial(tmp_path, capsys):
+    out = tmp_path / "study"
+    for seeds, said in (("5-6", "reporting seeds"), ("1000-1001", "the study's own tuning seeds")):
+        with pytest.raises(SystemExit) as exc:
+            tune.main([*TINY, "--episodes", "2", "--out", str(out), "--trials", "1", "--validate", "1",
+                       "--validation-seeds", seeds])
+        assert exc.value.code == 2 and said in capsys.readouterr().err
+        assert all(t.state == optuna.trial.TrialState.WAITING for t in trials_of(out))  # none ran
+        assert not (out / "trials").exists()
+    with pytest.raises(SystemExit):
+        tune.main([*TINY, "--out", str(tmp_path / "other"), "--trials", "1", "--validate", "-1"])
+    assert "--validate must be >= 0" in capsys.readouterr().err and not (tmp_path / "other").exists()
 
 
 def test_a_validated_study_writes_the_best_trial_on_the_validation_seeds(tmp_path, monkeypatch):

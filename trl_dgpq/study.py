@@ -451,22 +451,16 @@ class Study:
         goes on from its checkpoint when asked again. Returns {trial number: value}."""
         from optuna.trial import TrialState
         from trl_dgpq.analysis.results import seeds_text
-        seeds = sorted(set(seeds))
-        check_tuning_seeds(seeds)
-        shared = sorted(set(seeds) & set(self.config["run"]["seeds"]))
-        if shared:
-            raise ValueError(f"validation seeds {shared} are the study's own tuning seeds: validate on others, e.g. "
-                             f"--validation-seeds {max(self.config['run']['seeds']) + 1}-"
-                             f"{max(self.config['run']['seeds']) + 10}")
+        seeds = self.validation_seeds(seeds)
         study = self.load()
         done = [t for t in study.get_trials(deepcopy=False) if t.state == TrialState.COMPLETE]
         if not done:
             raise ValueError("no trial has completed: there is nothing to validate")
         ranked = sorted(done, key=lambda t: t.value, reverse=self.objective.direction == "maximize")
         picked = ranked[:k] + [t for t in ranked[k:] if "first" in t.user_attrs]
-        results = {int(n): v for n, v in study.user_attrs.get("validation", {}).get("values", {}).items()}
-        if study.user_attrs.get("validation", {}).get("seeds", seeds) != seeds:
-            results = {}  # other seeds: those values do not compare with these
+        stored = study.user_attrs.get("validation", {})
+        # values on other seeds do not compare with these: start over
+        results = {int(n): v for n, v in stored.get("values", {}).items()} if stored.get("seeds") == seeds else {}
         for t in picked:
             if t.number not in results:
                 path = self.out / "validation" / f"{t.number:04d}"
@@ -479,6 +473,17 @@ class Study:
             log(f"trial {t.number}: {self.objective.name} {results[t.number]:.6g} on the validation seeds "
                 f"{seeds_text(seeds)} ({t.value:.6g} on the tuning seeds{', the base preset' if 'first' in t.user_attrs else ''})")
         return results
+
+    def validation_seeds(self, seeds) -> list:
+        """``seeds`` sorted, once checked: tuning seeds, none of the study's own (ValueError)."""
+        seeds = sorted(set(seeds))
+        check_tuning_seeds(seeds)
+        own = self.config["run"]["seeds"]
+        shared = sorted(set(seeds) & set(own))
+        if shared:
+            raise ValueError(f"validation seeds {shared} are the study's own tuning seeds: validate on others, e.g. "
+                             f"--validation-seeds {max(own) + 1}-{max(own) + 10}")
+        return seeds
 
     @staticmethod
     def run_to_end(path: Path, config: dict) -> None:

@@ -87,11 +87,16 @@ class Choice:
         picked = trial.suggest_categorical(name, [self.label(o) for o in self.options])
         return next(o for o in self.options if self.label(o) == picked)
 
+    @staticmethod
+    def option(value):
+        """``value`` as the options hold it: a config's widths come as a list."""
+        return tuple(value) if isinstance(value, list) else value
+
     def contains(self, value, budget: int) -> bool:
-        return (tuple(value) if isinstance(value, list) else value) in self.options  # a config's widths: a list
+        return self.option(value) in self.options
 
     def params(self, name: str, value, budget: int) -> dict:
-        return {name: self.label(tuple(value) if isinstance(value, list) else value)}
+        return {name: self.label(self.option(value))}
 
 
 @dataclass(frozen=True)

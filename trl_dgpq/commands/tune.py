@@ -86,9 +86,13 @@ def _main(argv=None) -> int:
     keys = tune_keys()
     given = given_settings(args, parser, process=(*PROCESS_FLAGS, *keys))
     tune_given = {k: getattr(args, k) for k in keys if getattr(args, k) is not None}
+    from trl_dgpq.collectors.experiment import parse_seeds
     from trl_dgpq.study import Study
+    if args.validate < 0:
+        parser.error(f"--validate must be >= 0, got {args.validate}")
     try:
         study = Study.open(args.out, args.storage, given, tune_given)
+        validation_seeds = study.validation_seeds(parse_seeds(args.validation_seeds)) if args.validate else None
     except ValueError as err:  # everything asked is checked before any trial
         parser.error(str(err))
     trials, workers = study.tune.trials, study.tune.workers
@@ -102,14 +106,10 @@ def _main(argv=None) -> int:
               f"continue with: {command('tune')} --out {args.out}{storage} --trials {trials}", file=sys.stderr)
         return 128 + signum
     print(study.summary(trials), flush=True)
-    if args.validate < 0:
-        parser.error(f"--validate must be >= 0, got {args.validate}")
     if args.validate:
         from trl_dgpq.collectors import runner
-        from trl_dgpq.collectors.experiment import parse_seeds
         try:
-            study.validate(args.validate, parse_seeds(args.validation_seeds),
-                           log=lambda line: print(line, flush=True))
+            study.validate(args.validate, validation_seeds, log=lambda line: print(line, flush=True))
         except ValueError as err:
             parser.error(str(err))
         except runner.Interrupted as err:
