@@ -77,7 +77,8 @@ def planned_seed_steps(job: Job) -> int:
     from trl_dgpq.config import from_dict
     from trl_dgpq.envs import env_class
     run = job.config["run"]
-    per_seed = run["episodes"] * from_dict(env_class(run["env"]).Config, job.config["env"]).max_steps
+    cls = env_class(run["env"])   # checked: a gym id's cap of 0 is its registered one
+    per_seed = run["episodes"] * cls.checked_config(from_dict(cls.Config, job.config["env"])).max_steps
     if run.get("env_steps"):
         per_seed = min(per_seed, run["env_steps"])
     return len(job.seeds) * per_seed
@@ -333,6 +334,36 @@ def create(out, experiments: Dict[str, dict], jobs: List[Job], overwrite: bool =
     for name, config in experiments.items():
         (out / name).mkdir()
         runner.RunFolder(out / name).write_json(runner.CONFIG, {**config, **runner.provenance()})
+    _write_plan(out, experiments, jobs)
+
+
+def grow(out, experiments: Dict[str, dict], seeds_per_job: Optional[int],
+         same: Callable[[dict, dict], bool] = lambda a, b: a == b) -> List[Job]:
+    """The jobs of the sweep in ``out`` with the experiments of ``experiments`` that it lacks
+    added (a plan that grew: hours of finished jobs are kept, the new ones join them). A
+    recorded experiment planned again must be the ``same``; one planned otherwise, or not
+    planned at all, is refused by name: removing its folder lets it be planned anew."""
+    recorded, jobs = load(out)
+    recorded = {k: v for k, v in recorded.items() if (Path(out) / k).is_dir()}
+    changed = sorted(k for k in recorded if k in experiments and not same(recorded[k], experiments[k]))
+    dropped = sorted(set(recorded) - set(experiments))
+    if changed or dropped:
+        raise SweepError(f"{out} holds another plan: " + "; ".join(
+            f"{what}: {', '.join(names)}" for what, names in (("planned otherwise now", changed),
+                                                               ("no longer planned", dropped)) if names)
+            + f" (remove those folders of {out} to plan them anew, or choose another --out)")
+    added = {k: v for k, v in experiments.items() if k not in recorded}
+    kept = [j for j in jobs if j.experiment in recorded]
+    new = plan(added, out, seeds_per_job)
+    for name, config in added.items():
+        shutil.rmtree(Path(out) / name, ignore_errors=True)   # a removed experiment's leftovers
+        (Path(out) / name).mkdir()
+        runner.RunFolder(Path(out) / name).write_json(runner.CONFIG, {**config, **runner.provenance()})
+    _write_plan(out, {**recorded, **added}, kept + new)
+    return kept + new
+
+
+def _write_plan(out, experiments: Dict[str, dict], jobs: List[Job]) -> None:
     runner.RunFolder(out).write_json(SWEEP, dict(experiments=experiments, jobs=[
         dict(experiment=j.experiment, index=j.index, seeds=j.seeds, folder=str(Path(j.folder).relative_to(out)))
         for j in jobs]))

@@ -252,3 +252,43 @@ def test_bounds_settings_are_checked():
         car([0], obs_low=(-1.0, -1.0), obs_high=(1.0,))
     with pytest.raises(ValueError, match="finite obs_low < obs_high"):
         car([0], obs_low=(1.0, -1.0), obs_high=(0.0, 1.0))
+
+
+# ---------------------------------------------------------------- the reproduction's gym section (issue 29)
+def test_the_reproduction_runs_each_learner_at_the_comparisons_budget_and_dqn_at_the_zoos():
+    from trl_dgpq.commands.reproduce import experiments
+    plan = experiments("report", ["gym"])
+    run = {name: (c["run"]["env"], c["run"]["agent"], c["run"]["preset"], len(c["run"]["seeds"]), c["run"]["env_steps"])
+           for name, c in plan.items()}
+    assert run["cartpole-dgpq"] == ("gym:CartPole-v1", "dgpq", "default", 10, 20_000)
+    assert run["mountaincar-dgpq"] == ("gym:MountainCar-v0", "dgpq", "default", 10, 30_000)
+    assert run["acrobot-dqn"] == ("gym:Acrobot-v1", "dqn", "default", 10, 20_000)
+    assert run["cartpole-dqn-tuned"] == ("gym:CartPole-v1", "dqn", "tuned", 10, 20_000)   # a study wrote it
+    # the zoo's own budgets, epsilon over its exploration fraction of them (0.16 x 50,000; 0.12 x 100,000)
+    assert run["cartpole-dqn-zoo"][2:] == ("zoo", 10, 50_000) and run["acrobot-dqn-zoo"][4] == 100_000
+    assert plan["cartpole-dqn-zoo"]["agent"]["exploration_steps"] == 8_000
+    assert plan["acrobot-dqn-zoo"]["agent"]["exploration_steps"] == 12_000
+    assert plan["cartpole-dgpq"]["env"]["observations"] == "unit" and plan["cartpole-dqn"]["env"]["observations"] == "raw"
+    assert set(experiments("smoke", ["gym"])) == {n for n in plan if n.startswith("cartpole-")}
+
+
+def _run(agent: str, met_at, episodes: int = 30, steps: int = 10):
+    """A CartPole run whose seed k returns 200 from its episode met_at[k] on (None: 20 always)."""
+    from trl_dgpq.analysis.runs import Run
+    rows = [dict(seed=k, episode=e, steps=steps, env_steps=e * steps,
+                 **{"return": 200.0 if m is not None and e >= m else 20.0})
+            for k, m in enumerate(met_at) for e in range(1, episodes + 1)]
+    config = {"run": {"env": "gym:CartPole-v1", "agent": agent, "preset": "tuned", "env_steps": episodes * steps}}
+    return Run(None, pd.DataFrame(rows), config)
+
+
+def test_the_claim_holds_is_reversed_or_is_not_shown_by_the_interval_of_p():
+    from trl_dgpq.envs.gym.analysis import claim
+    fast, never = _run("dgpq", [1] * 8), _run("dqn", [None] * 8)
+    # the mean of the last 10 returns meets 195 once 10 of them are 200: at episode 10 (100 steps) from
+    # episode 1; never for the other: counted as the budget (300), so every DGPQ seed is better
+    assert "P(DGPQ improves on DQN) = 1.00 [1.00, 1.00]" in claim(fast, never) and "claim holds" in claim(fast, never)
+    assert "0.00 [0.00, 0.00]" in claim(_run("dgpq", [None] * 8), _run("dqn", [1] * 8))
+    assert "reversed" in claim(_run("dgpq", [None] * 8), _run("dqn", [1] * 8))
+    same = claim(_run("dgpq", [1, 5, 9, None] * 2), _run("dqn", [1, 5, 9, None] * 2))
+    assert "= 0.50" in same and "not shown" in same and "at 300 steps" in same

@@ -2,6 +2,7 @@
 reported and resumable while the others finish; bad input is refused before any job."""
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -254,11 +255,12 @@ def test_reproduce_writes_every_figure_and_the_report(tmp_path):
     assert reproduce.main(["--scale", "smoke", "--out", str(out), "--workers", "2"]) == 0
     text = (out / "REPORT.md").read_text()
     for section in ("## Square", "## Block pushing", "## Optimal liquidation", "## Aircraft altitude hold",
-                    "smoke scale"):
+                    "### A decision every 0.5 s", "## DGPQ against DQN", "smoke scale"):
         assert section in text
     for fig in ("square/steps_per_episode.png", "square/time_per_step.png", "square-kernels/steps_per_episode.png",
                 "push/push.png", "push/push.gif", "liquidation/liquidation_cost.png", "liquidation/liquidation_time.png",
-                "liquidation/holdings.png", "square/qhat.png", "f16/f16_reward.png", "f16/f16_trace.png"):
+                "liquidation/holdings.png", "square/qhat.png", "f16/f16_reward.png", "f16/f16_trace.png",
+                "f16-05/f16_reward.png", "gym/compare-gym-CartPole-v1.png", "gym-zoo/compare-gym-CartPole-v1.png"):
         assert (out / fig).is_file(), fig
     import csv
 
@@ -276,6 +278,12 @@ def test_reproduce_only_plans_the_named_domains():
     assert f16 and all(name.startswith("f16-") for name in f16)
     assert set(f16) < set(every) and any(name.startswith("square-") for name in every)
     assert f16["f16-dgpq-lq10"]["agent"]["lipschitz"] == 10.0 and f16["f16-nothing"]["agent"]["action"] == "hold"
+    report = reproduce.experiments("report", ["f16", "liquidation"])
+    flight = report["f16-05-dgpq-lq10"]            # issue 28's formulation: a decision every 0.5 s, GWH14's L_Q 10
+    assert (flight["agent"]["lipschitz"], flight["env"]["decision_steps"], flight["run"]["episodes"]) == (10.0, 10, 3000)
+    assert report["f16-05-nothing"]["run"]["episodes"] == 100 and report["f16-dgpq-lq5"]["env"]["decision_steps"] == 1
+    assert (report["liq-td3-shortfall"]["run"]["agent"], report["liq-td3-shortfall"]["run"]["episodes"]) == ("td3", 3_000)
+    assert report["liq-dgpq-tuned"]["run"]["preset"] == "tuned"
     with pytest.raises(SystemExit):  # an unknown domain: argparse's one line, exit 2
         reproduce.main(["--only", "nowhere"])
 
@@ -304,6 +312,10 @@ def test_the_time_left_is_weighed_by_each_jobs_planned_steps():
     a, b, c = (sweep.Job(name, 0, cfg["run"]["seeds"], "x", cfg) for name, cfg in experiments.items())
     assert [sweep.planned_seed_steps(j) for j in (a, b, c)] == [4000, 1000, 720]
     assert sweep.minutes_left(1.0, [a, b], [c]) == pytest.approx(720 / 5000)
+    # a gym id's cap is its registered one (CartPole-v1: 500), not the config's 0
+    cart = resolve_config(env="gym:CartPole-v1", agent="random", seeds=[0, 1], episodes=3)
+    long = resolve_config(env="gym:CartPole-v1", agent="random", seeds=[0, 1], episodes=100, env_steps=700)
+    assert [sweep.planned_seed_steps(sweep.Job("d", 0, [0, 1], "x", cfg)) for cfg in (cart, long)] == [3000, 1400]
 
 
 @pytest.mark.slow
@@ -340,3 +352,30 @@ def test_an_out_a_node_cannot_write_is_named_in_one_line(tmp_path):
     reason = sweep.writable_here(str(blocker / "out"))
     assert reason.startswith("node ") and "cannot write" in reason and str(blocker / "out") in reason
     assert sweep.writable_here(str(tmp_path / "fine")) is None and (tmp_path / "fine").is_dir()
+
+
+def test_a_plan_that_grew_keeps_the_finished_jobs_and_adds_the_new_ones(tmp_path):
+    out = tmp_path / "s"
+    a = resolve_config(env="corridor", agent="constant", seeds=[0, 1], episodes=1)
+    b = resolve_config(env="corridor", agent="constant", seeds=[2], episodes=2)
+    sweep.create(out, {"a": a}, sweep.plan({"a": a}, out, None))
+    sweep.execute(out, sweep.load(out)[1], "local", 1, log=lambda line: None)
+    rows_a = (out / "a" / "episodes.csv").read_text()
+    jobs = sweep.grow(out, {"a": a, "b": b}, 1)
+    assert [(j.experiment, j.seeds) for j in jobs] == [("a", [0, 1]), ("b", [2])]
+    assert sweep.load(out)[0] == {"a": a, "b": b}                       # the plan on disk grew too
+    report = sweep.execute(out, sweep.load(out)[1], "local", 1, log=lambda line: None)
+    assert report["a job 0 (seeds 0-1)"]["note"] == "finished before"   # not run again
+    assert report["b job 0 (seeds 2)"]["status"] == "finished"
+    assert (out / "a" / "episodes.csv").read_text() == rows_a and len(pd.read_csv(out / "b" / "episodes.csv")) == 2
+    assert sweep.grow(out, {"a": a, "b": b}, None) == jobs               # nothing new: the same jobs
+    other = resolve_config(env="corridor", agent="constant", seeds=[0, 1], episodes=3)
+    with pytest.raises(sweep.SweepError, match="planned otherwise now: a"):
+        sweep.grow(out, {"a": other, "b": b}, None)
+    with pytest.raises(sweep.SweepError, match="no longer planned: b"):
+        sweep.grow(out, {"a": a}, None)
+    assert sweep.grow(out, {"a": a, "b": b}, None, same=lambda x, y: True) == jobs  # the caller's sameness
+    shutil.rmtree(out / "a")                                            # removed: planned anew
+    jobs = sweep.grow(out, {"a": other, "b": b}, None)
+    assert [(j.experiment, j.seeds) for j in jobs] == [("b", [2]), ("a", [0, 1])]
+    assert sweep.load(out)[0]["a"] == other and not runner.RunFolder(jobs[1].folder).finished()

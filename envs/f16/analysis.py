@@ -168,6 +168,16 @@ REPRODUCE = [
     ("f16-nothing", dict(agent="constant", preset="default"), SCRIPTED_SCALES),
     ("f16-random", dict(agent="random", preset="default"), SCRIPTED_SCALES),
 ]
+# The "flight-05" formulation (issue 28: a decision every 0.5 s), where DGPQ beats holding in time.
+FLIGHT_SCALES = {"smoke": (1, 3), "quick": (2, 50), "full": (10, 1500), "report": (10, 3000)}
+FLIGHT_SCRIPTED = {k: (seeds, min(episodes, 100)) for k, (seeds, episodes) in FLIGHT_SCALES.items()}
+REPRODUCE += [
+    ("f16-05-dgpq-lq5", dict(agent="dgpq", preset="flight-05"), FLIGHT_SCALES),
+    ("f16-05-dgpq-lq10", dict(agent="dgpq", preset="flight-05", lipschitz=10.0), FLIGHT_SCALES),
+    ("f16-05-dqn", dict(agent="dqn", preset="flight-05"), FLIGHT_SCALES),
+    ("f16-05-pd", dict(agent="pd", preset="flight-05"), FLIGHT_SCRIPTED),
+    ("f16-05-nothing", dict(agent="constant", preset="flight-05"), FLIGHT_SCRIPTED),
+]
 
 
 def late_window(E: int) -> tuple:
@@ -176,10 +186,10 @@ def late_window(E: int) -> tuple:
     return (901, 1000) if E >= 1000 else (max(1, E - 9), E)
 
 
-def row(name: str, df: pd.DataFrame) -> tuple:
+def row(name: str, df: pd.DataFrame, late=None) -> tuple:
     E = int(df.episode.max())
     stable = episodes_to_stable(df)
-    late = late_window(E)
+    late = late or late_window(E)
     cells = (f"{window_reward(df, 1, 10):.0f}",
              f"{window_reward(df, 100, 200):.0f}" if E >= 200 else "- (not run to 200)",  # GWH14's window, whole
              f"{window_reward(df, *late):.0f} ({late[0]}-{late[1]})",
@@ -189,15 +199,31 @@ def row(name: str, df: pd.DataFrame) -> tuple:
     return f"| {name.removeprefix('f16-')} | {df.seed.nunique()} x {E} | " + " | ".join(cells) + " |"
 
 
+TABLE_HEAD = ["| agent | seeds x episodes | reward, episodes 1-10 | 100-200 | late (episodes) | stable flight "
+              "reached (episode) | ms per seed-step |", "|---|---|---|---|---|---|---|"]
+
+
+def flight_05_part(runs: dict, out: Path, title: str) -> str:
+    """The flight-05 runs' table and figure: "late" is each run's last 100 episodes."""
+    (out / "f16-05").mkdir(exist_ok=True)
+    names = list(runs)
+    reward_figure([runs[n] for n in names], [n.removeprefix("f16-05-") for n in names], out / "f16-05",
+                  block=50, title=f"flight-05, {title}")
+    rows = [row(n, runs[n].df, late=(max(1, runs[n].df.episode.max() - 99), runs[n].df.episode.max()))
+            for n in names]
+    return ("### A decision every 0.5 s (`flight-05`, issue 28)\n\n" + "\n".join(TABLE_HEAD + rows)
+            + "\n\n![reward, flight-05](f16-05/f16_reward.png)\n")
+
+
 def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
     """REPORT.md's F-16 section; ``runs``: {name in REPRODUCE: Run}."""
     (out / "f16").mkdir(exist_ok=True)
+    flight = {n: r for n, r in runs.items() if n.startswith("f16-05-")}
+    runs = {n: r for n, r in runs.items() if n not in flight}
     names = list(runs)
     figures([runs[n] for n in names], [n.removeprefix("f16-") for n in names], out / "f16",
             block=10, title=title)
-    rows = ["| agent | seeds x episodes | reward, episodes 1-10 | 100-200 | late (episodes) | stable flight reached "
-            "(episode) | ms per seed-step |", "|---|---|---|---|---|---|---|"]
-    rows += [row(n, runs[n].df) for n in names]
+    rows = TABLE_HEAD + [row(n, runs[n].df) for n in names]
     sentences = []
     for n, L, (e1, r1) in (("f16-dgpq-lq5", 5, PAPER[5.0][1]), ("f16-dgpq-lq10", 10, PAPER[10.0][1])):
         if n not in runs:
@@ -218,7 +244,8 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
                          f"{'within 100 episodes' if L == 5 else 'by about 1,000 episodes'}).")
     return (f"## Aircraft altitude hold (GWH14's second experiment) -- Figure 3\n\n{label}\n\n"
             + "\n".join(rows) + "\n\n" + "\n".join(sentences)
-            + "\n\n![reward](f16/f16_reward.png) ![trace](f16/f16_trace.png)\n")
+            + "\n\n![reward](f16/f16_reward.png) ![trace](f16/f16_trace.png)\n"
+            + ("\n" + flight_05_part(flight, out, title) if flight else ""))
 
 
 # ------------------------------------------------------------ is Q̂ still optimistic? (issue 28)

@@ -58,16 +58,20 @@ def experiments(scale: str, only=None) -> dict:
             sizes = (own[0] if own else analysis.SCALES).get(scale)
             if sizes is None:  # an experiment of some scales only
                 continue
-            seeds, episodes = sizes
-            out[name] = resolve_config({**settings, "env": d.examples()[0], "seeds": seeds, "episodes": episodes})
+            seeds, episodes, *budget = sizes   # (seeds, episodes[, env steps per seed])
+            out[name] = resolve_config({"env": d.examples()[0], **settings, "seeds": seeds, "episodes": episodes,
+                                        "env_steps": budget[0] if budget else 0})
     return out
 
 
 def scale_label(scale: str, only=None) -> str:
     note = (f"fewer seeds and episodes than the seed report (the {scale} scale; numbers are noisier)"
             if scale not in ("full", "report") else "the seed report's lengths")
-    sizes = [f"{d.name} {count(a.SCALES[scale][0], 'seed')} x {count(a.SCALES[scale][1], 'episode')}"
-             for d, a in reproductions(only)]
+    sizes = []
+    for d, a in reproductions(only):
+        seeds, length, *budget = a.SCALES[scale]
+        sizes.append(f"{d.name} {count(seeds, 'seed')} x " + (f"{budget[0]} env steps" if budget
+                                                               else count(length, "episode")))
     return f"*Scale: {scale}* -- {note}: " + ", ".join(sizes) + " (some agents fewer: see the tables)."
 
 
@@ -135,9 +139,8 @@ def main(argv=None) -> int:
 
     def body() -> int:
         if (out / sweep.SWEEP).is_file():
-            recorded, jobs = sweep.load(out)
-            if {k: same_run(v) for k, v in recorded.items()} != {k: same_run(v) for k, v in planned.items()}:
-                raise sweep.SweepError(f"{out} holds another sweep (another scale?): choose another --out")
+            # experiments added to the plan since (a new agent, a new domain) join the finished ones
+            jobs = sweep.grow(out, planned, None, same=lambda a, b: same_run(a) == same_run(b))
             print(f"continuing {out}", flush=True)
         else:
             jobs = sweep.plan(planned, out, None)
