@@ -55,20 +55,29 @@ SCALES = {"smoke": (1, CAP, "300"), "quick": (3, CAP, "5,000-30,000"),
           **{s: (10, CAP, "20,000-120,000") for s in ("full", "report")}}   # for the label only
 
 
-def claim(dgpq, dqn) -> str:
+def claim(dgpq, dqn):
     """Whether "DGPQ needs fewer env steps to the threshold" holds for two runs on one task: P(a
-    DGPQ seed improves on a DQN seed) with its 95 % CI (a seed that never met it: the budget)."""
+    DGPQ seed improves on a DQN seed) with its 95 % CI (a seed that never met it: the budget);
+    reproduced when the CI lies above 0.5."""
+    from trl_dgpq.analysis.claims import Claim
     from trl_dgpq.analysis.stats import probability_of_improvement
     from trl_dgpq.analysis.summary import steps_to_threshold
     budget = dqn.config["run"]["env_steps"]
     threshold = THRESHOLDS[dqn.env_id]
     steps = [steps_to_threshold(r.df, threshold, budget).fillna(budget).to_numpy() for r in (dgpq, dqn)]
     p, low, high = probability_of_improvement(-steps[0], -steps[1])
-    verdict = ("holds" if low > 0.5 else "is reversed (DQN needs fewer)" if high < 0.5 else
-               "is not shown either way")
-    return (f"- {dqn.env_id}, {dgpq.preset} DGPQ against {dqn.preset} DQN at {budget:,} steps: "
-            f"P(DGPQ improves on DQN) = {p:.2f} [{low:.2f}, {high:.2f}] on steps to the threshold: the claim "
-            f"{verdict}.")
+    shown = ("DGPQ shown faster" if low > 0.5 else "DQN shown faster" if high < 0.5 else "neither shown faster")
+    return Claim("this suite", f"{dqn.env_id}, {dgpq.preset} DGPQ needs fewer env steps to the threshold than "
+                 f"{dqn.preset} DQN ({budget:,} steps per seed)",
+                 f"P(DGPQ improves on DQN) = {p:.2f} [{low:.2f}, {high:.2f}]: {shown}",
+                 "reproduced" if low > 0.5 else "not reproduced")
+
+
+def claims(runs: dict) -> list:
+    """Default against default and tuned against tuned, per task."""
+    tags = [i.split("-")[0].lower() for i in BUDGETS]
+    return [claim(runs[f"{t}-dgpq{s}"], runs[f"{t}-dqn{s}"]) for t in tags for s in ("", "-tuned")
+            if f"{t}-dgpq{s}" in runs and f"{t}-dqn{s}" in runs]
 
 
 def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
@@ -89,9 +98,8 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
         figures = " ".join(f"![{p.stem}]({folder}/{p.name})" for p in written
                            if p.suffix == ".png" and p.name.startswith("compare-"))
         parts += [what, text, figures, ""]
-    pairs = [(runs[f"{tag}-dgpq{s}"], runs[f"{tag}-dqn{s}"]) for tag in (i.split("-")[0].lower() for i in BUDGETS)
-             for s in ("", "-tuned") if f"{tag}-dgpq{s}" in runs and f"{tag}-dqn{s}" in runs]
-    if pairs:
+    found = claims(runs)
+    if found:
         parts += ["Our claim, \"DGPQ needs fewer environment steps than DQN\", default against default and "
-                  "tuned against tuned:", "", *[claim(*p) for p in pairs], ""]
+                  "tuned against tuned:", "", *[c.bullet() for c in found], ""]
     return "\n".join(parts)

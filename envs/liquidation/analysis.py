@@ -7,7 +7,7 @@ from pathlib import Path
 
 import torch
 
-from trl_dgpq.analysis import agree, paired_ratios
+from trl_dgpq.analysis import paired_ratios
 from trl_dgpq.config import from_dict
 
 from .almgren_chriss import ACModel
@@ -238,20 +238,44 @@ def course_sentence(runs: dict) -> str:
             f"{half(ours):.1f}: the course's agent, as the seed report ran it, learns to sell in few trades.")
 
 
+U_STAR = 704_723   # the AC optimum's ac_cost with the defaults, $ (SPEC 3.2's closed form)
+
+
+def claims(runs: dict) -> list:
+    """The model's closed form and TWAP against it (AC00), and issue 28's goal for tuned DGPQ."""
+    from trl_dgpq.analysis.claims import Claim, within
+    out = []
+    if "liq-ac-optimal" in runs:
+        opt = runs["liq-ac-optimal"].df
+        out.append(Claim("AC00", f"the optimal schedule's expected cost U* = ${U_STAR:,}",
+                         f"ac-optimal's mean ac_cost over {len(opt):,} seed-episodes ${opt.ac_cost.mean():,.0f} "
+                         f"({opt.ac_cost.mean() / U_STAR:.3f} U*)", within(opt.ac_cost.mean(), U_STAR, 1.05)))
+        if "liq-twap" in runs:
+            cost, short = paired_ratios(runs["liq-twap"].df, opt, ("ac_cost", "implementation_shortfall"))
+            out.append(Claim("AC00", "TWAP costs 4.3x the optimum's ac_cost at 0.48x its shortfall",
+                             f"{cost:.2f}x and {short:.2f}x, paired on the same price paths",
+                             "reproduced" if {within(cost, 4.3, 1.1), within(short, 0.48, 1.1)} == {"reproduced"}
+                             else "not reproduced"))
+    if "liq-dgpq-tuned" in runs:
+        d = drift(runs["liq-dgpq-tuned"].df)
+        out.append(Claim("this suite (issue 28's goal)", "tuned DGPQ stops drifting: after episode 1,000 its worst "
+                         "block of 500 within 1.02x of its best, its last 1,000 episodes at most 1.10 U*",
+                         f"{d['worst_over_best']:.2f}x, last 1,000 at {d['last']:.2f} U*",
+                         "reproduced" if d["worst_over_best"] <= 1.02 and d["last"] <= 1.10 else "not reproduced")
+                   if d["worst_over_best"] == d["worst_over_best"] else   # NaN: the run never passed 1,000
+                   Claim("this suite (issue 28's goal)", "tuned DGPQ stops drifting after episode 1,000",
+                         f"the run ended at episode {runs['liq-dgpq-tuned'].df.episode.max()}", "not measured"))
+    return out
+
+
 def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
     """REPORT.md's liquidation section; ``runs``: {name in REPRODUCE: Run}."""
     (out / "liquidation").mkdir(exist_ok=True)
     last = max(1, min(r.df.episode.max() for r in runs.values()) // 2)
     figures(list(runs.values()), [n.removeprefix("liq-") for n in runs], out / "liquidation",
             block=max(1, last // 5), last=last, title=title)
-    opt = runs["liq-ac-optimal"].df
-    cost, short = paired_ratios(runs["liq-twap"].df, opt, ("ac_cost", "implementation_shortfall"))
     dump = runs["liq-ddpg-utility-ratio"].df
-    sentences = [
-        f"- AC optimum (closed form: U* = $704,723): ac-optimal's mean ac_cost over all its {len(opt)} "
-        f"seed-episodes is ${opt.ac_cost.mean():,.0f} ({opt.ac_cost.mean() / 704_723:.3f} U*).",
-        f"- Expected from the model: TWAP costs 4.3x the optimum's ac_cost at 0.48x its shortfall. Ours, paired "
-        f"on the same price paths over all episodes: {cost:.2f}x and {short:.2f}x ({agree(cost, 4.3, 1.1)}).",
+    sentences = [c.bullet() for c in claims(runs)] + [
         f"- The seed report's utility-ratio reward pays most for selling everything at once. DDPG on it "
         f"trades {dump[dump.episode > dump.episode.max() // 2].steps.mean():.1f} times per episode (of 60) in its "
         "second half.",

@@ -75,16 +75,25 @@ REPRODUCE = [
 ]
 
 
+def claims(runs: dict) -> list:
+    """The seed report's push claim: its code never stepped the robot, so there is no number."""
+    from trl_dgpq.analysis.claims import Claim
+    rates = {n: r.df[r.df.episode > r.df.episode.max() - DEFAULT_LAST].success.mean() for n, r in runs.items()}
+    learners = [rates[n] for n in ("push-rbf", "push-manifold") if n in rates]
+    return [Claim("seed report", "DGPQ reached the goal within three episodes, with very spiky performance (its "
+                  "code never stepped the robot)",
+                  f"success over the last {DEFAULT_LAST} episodes " + ", ".join(
+                      f"{v:.0%} ({n.removeprefix('push-')})" for n, v in rates.items())
+                  + (": DGPQ learns the task" if learners and min(learners) >= 0.8 else
+                     ": DGPQ does not learn it reliably at this length"),
+                  "no number to compare")]
+
+
 def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
     """REPORT.md's push section; ``runs``: {name in REPRODUCE: Run}."""
     (out / "push").mkdir(exist_ok=True)
     figures(list(runs.values()), ["DGPQ RBF", "DGPQ manifold", "oracle"], out / "push", DEFAULT_LAST, title=title)
-    rates = [r.df[r.df.episode > r.df.episode.max() - DEFAULT_LAST].success.mean() for r in runs.values()]
-    sentence = (f"- Seed report: the goal was reached in three episodes, and performance was very spiky (its "
-                f"code never stepped the robot; no numbers to compare). Ours: success over the last 20 episodes "
-                f"{rates[0]:.0%} (RBF), {rates[1]:.0%} (manifold), {rates[2]:.0%} (oracle) -- "
-                + ("DGPQ learns the task." if min(rates[:2]) >= 0.8 else "DGPQ does not learn it reliably at this "
-                   "length.") + " GWH14 had no robot experiment.")
+    sentence = "\n".join(c.bullet() for c in claims(runs)) + " GWH14 had no robot experiment."
     return (f"## Block pushing (seed report 4.3) -- Figure 5\n\n{label}\n\n" + (out / "push" / "push.md").read_text()
             + "\n" + sentence + "\n\n![push](push/push.png)"
             + (" ![an evaluation episode](push/push.gif)" if (out / "push" / "push.gif").is_file() else "") + "\n")

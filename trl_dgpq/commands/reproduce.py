@@ -84,12 +84,16 @@ def write_report(out: Path, scale: str, wall: float, only=None) -> Path:
             "min (this invocation).\n\n")
     title = f"{scale} scale" + (" (fewer seeds and episodes than the seed report)"
                                 if scale not in ("full", "report") else "")
-    sections = [analysis.reproduce_section({name: load_run(out / name) for name, *_ in analysis.REPRODUCE
-                                            if (out / name).is_dir()},
-                                           out, scale_label(scale, only), title)
-                for _, analysis in reproductions(only)]
+    from trl_dgpq.analysis.claims import table
+    loaded = [(analysis, {name: load_run(out / name) for name, *_ in analysis.REPRODUCE if (out / name).is_dir()})
+              for _, analysis in reproductions(only)]
+    sections = [analysis.reproduce_section(runs, out, scale_label(scale, only), title) for analysis, runs in loaded]
+    claims = [c for analysis, runs in loaded if hasattr(analysis, "claims") for c in analysis.claims(runs)]
+    summary = ("## Claims, and whether they reproduce\n\nEach claim of GWH14, the seed report, AC00 (the model's "
+               "closed form) and this suite's own README, beside what this run measured; the sections below "
+               "have the tables and figures.\n\n" + table(claims) + "\n\n") if claims else ""
     path = out / "REPORT.md"
-    path.write_text(head + "\n".join(sections))
+    path.write_text(head + summary + "\n".join(sections))
     from trl_dgpq.analysis import results
     results.write([results.row(name, load_run(out / name)) for _, analysis in reproductions(only)
                    for name, *_ in analysis.REPRODUCE if (out / name / "episodes.csv").is_file()],
