@@ -90,6 +90,19 @@ def minutes_left(minutes: float, done: List[Job], left: List[Job]) -> float:
     return minutes * sum(map(planned_seed_steps, left)) / max(1, sum(map(planned_seed_steps, done)))
 
 
+def makespan(seconds: List[float], workers: int) -> float:
+    """The wall time of jobs taking ``seconds`` each on ``workers`` workers, each job given whole
+    to the worker free first, longest first (LPT: within 4/3 of the best schedule). How long a
+    sweep would take on a Ray cluster of that many cores, ignoring start-up and transfers."""
+    import heapq
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    free = [0.0] * workers
+    for s in sorted(seconds, reverse=True):
+        heapq.heappush(free, heapq.heappop(free) + s)
+    return max(free)
+
+
 def _span(seeds: List[int]) -> str:
     return f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 1 \
         else ",".join(map(str, seeds))

@@ -255,7 +255,8 @@ def test_reproduce_writes_every_figure_and_the_report(tmp_path):
     assert reproduce.main(["--scale", "smoke", "--out", str(out), "--workers", "2"]) == 0
     text = (out / "REPORT.md").read_text()
     for section in ("## Square", "## Block pushing", "## Optimal liquidation", "## Aircraft altitude hold",
-                    "### A decision every 0.5 s", "## DGPQ against DQN", "smoke scale"):
+                    "### A decision every 0.5 s", "## DGPQ against DQN", "## Claims, and whether they reproduce",
+                    "## What it cost", "smoke scale"):
         assert section in text
     for fig in ("square/steps_per_episode.png", "square/time_per_step.png", "square-kernels/steps_per_episode.png",
                 "push/push.png", "push/push.gif", "liquidation/liquidation_cost.png", "liquidation/liquidation_time.png",
@@ -379,3 +380,29 @@ def test_a_plan_that_grew_keeps_the_finished_jobs_and_adds_the_new_ones(tmp_path
     jobs = sweep.grow(out, {"a": other, "b": b}, None)
     assert [(j.experiment, j.seeds) for j in jobs] == [("b", [2]), ("a", [0, 1])]
     assert sweep.load(out)[0]["a"] == other and not runner.RunFolder(jobs[1].folder).finished()
+
+
+def test_makespan_gives_each_job_longest_first_to_the_worker_free_first():
+    # 2 workers: 5 | 4, then 3 -> the 4 (7), 3 -> the 5 (8), 3 -> the 7 (10); the best split is 9
+    assert sweep.makespan([3, 5, 3, 4, 3], 2) == 10
+    assert sweep.makespan([3, 5, 3, 4, 3], 1) == 18 and sweep.makespan([3, 5, 3, 4, 3], 64) == 5
+    assert sweep.makespan([], 4) == 0
+    with pytest.raises(ValueError, match="workers"):
+        sweep.makespan([1.0], 0)
+
+
+def test_the_reports_cost_section_sums_each_jobs_rows_and_projects_them(tmp_path):
+    from trl_dgpq.analysis.runs import Run
+    for name, commit in (("a", "abcdef1234"), ("b", "1234567890")):
+        (tmp_path / name / "jobs" / "j000").mkdir(parents=True)
+        (tmp_path / name / "jobs" / "j000" / "config.json").write_text(json.dumps({"git": {"commit": commit}}))
+    # a: two jobs of 1,800 s and 3,600 s (two rows each); b: one job of 5,400 s
+    a = pd.DataFrame(dict(seed=[0, 0, 1, 1], job=[0, 0, 1, 1], steps=[10, 10, 10, 10], wall_s=[900.0, 900, 1800, 1800]))
+    b = pd.DataFrame(dict(seed=[0, 1], job=[0, 0], steps=[100, 100], wall_s=[2700.0, 2700]))
+    loaded = [(None, {"a": Run(tmp_path / "a", a, {}), "b": Run(tmp_path / "b", b, {})})]
+    text = reproduce.cost_section(loaded)
+    assert "| a | 2 | 40 | 90.0 | 135000.00 |" in text and "| b | 2 | 200 | 90.0 | 27000.00 |" in text
+    assert "In all 3.00 h of one core over 3 jobs" in text and "the longest job, 1.50 h" in text
+    assert "2 cores 1.50 h, 16 cores 1.50 h" in text     # 1.5 h | 1 h + 0.5 h
+    assert "commits 1234567, abcdef1." in text
+    assert reproduce.cost_section([(None, {})]) == ""

@@ -21,12 +21,13 @@ runs fewer seeds and episodes and says so in every title and table.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
 from pathlib import Path
 
-from trl_dgpq.analysis import count, load_run
+from trl_dgpq.analysis import count, load_run, ms_per_seed_step
 from trl_dgpq.collectors import runner, sweep
 from trl_dgpq.collectors.experiment import resolve_config
 from trl_dgpq.commands import prog
@@ -93,12 +94,42 @@ def write_report(out: Path, scale: str, wall: float, only=None) -> Path:
                "closed form) and this suite's own README, beside what this run measured; the sections below "
                "have the tables and figures.\n\n" + table(claims) + "\n\n") if claims else ""
     path = out / "REPORT.md"
-    path.write_text(head + summary + "\n".join(sections))
+    path.write_text(head + summary + "\n".join(sections) + "\n" + cost_section(loaded))
     from trl_dgpq.analysis import results
     results.write([results.row(name, load_run(out / name)) for _, analysis in reproductions(only)
                    for name, *_ in analysis.REPRODUCE if (out / name / "episodes.csv").is_file()],
                   out / "results.csv")
     return path
+
+
+CLUSTERS = (2, 16, 64, 256)   # cores: this machine, and Ray clusters of 1, 4 and 16 16-core nodes
+
+
+def cost_section(loaded) -> str:
+    """What the runs cost: each experiment's wall time (its rows' ``wall_s``: a batch's time,
+    shared among its seeds), the total on one core, and the plan's wall time on more cores."""
+    jobs, rows, commits = [], [], set()
+    for _, runs in loaded:
+        for name, run in runs.items():
+            per_job = run.df.groupby(run.df["job"] if "job" in run.df else 0)["wall_s"].sum()
+            jobs += list(per_job)
+            for config in sorted(Path(run.path).glob("jobs/*/config.json")):   # each job's own run
+                commits.add((json.loads(config.read_text()).get("git", {}).get("commit") or "?")[:7])
+            rows.append(f"| {name} | {run.df.seed.nunique()} | {run.df.steps.sum():,} | {per_job.sum() / 60:,.1f} "
+                        f"| {ms_per_seed_step(run.df):.2f} |")
+    if not jobs:
+        return ""
+    total = sum(jobs)
+    projected = ", ".join(f"{n} cores {sweep.makespan(jobs, n) / 3600:.2f} h" for n in CLUSTERS)
+    return ("## What it cost\n\nEach experiment's wall time is the sum of its rows' `wall_s` (the time of the "
+            "seed batch, shared among its seeds; process start-up not counted), measured on this machine while "
+            "other work shared its cores, so a quiet machine is faster.\n\n"
+            "| experiment | seeds | seed-steps | wall, min | ms per seed-step |\n|---|---|---|---|---|\n"
+            + "\n".join(rows) + f"\n\nIn all {total / 3600:.2f} h of one core over {len(jobs)} jobs. The same jobs "
+            f"scheduled longest first on more cores (`collectors/sweep.py` makespan; a Ray cluster of that many "
+            f"cores, one job per core, start-up and transfers ignored; the longest job, "
+            f"{max(jobs) / 3600:.2f} h, bounds it): {projected}. Runs made at commits "
+            f"{', '.join(sorted(commits))}.\n")
 
 
 FIGURES = ("*.png", "*.gif")
