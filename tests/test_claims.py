@@ -11,15 +11,18 @@ def test_a_claims_verdict_is_one_of_five_and_the_table_counts_them():
         Claim("GWH14", "x", "y", "maybe")
     claims = [Claim("GWH14", "a | b", "1", "reproduced"), Claim("AC00", "c", "2", "not measured"),
               Claim("AC00", "d", "3", "reproduced")]
-    text = table(claims)
-    assert "| GWH14 | a \\| b | 1 | reproduced |" in text          # a pipe in a cell does not split it
-    assert text.endswith("2 reproduced, 1 not measured.") and len(VERDICTS) == 5
+    assert table(claims) == ("| source | claim | ours | verdict |\n|---|---|---|---|\n"
+                             "| GWH14 | a \\| b | 1 | reproduced |\n"          # a pipe in a cell does not split it
+                             "| AC00 | c | 2 | not measured |\n| AC00 | d | 3 | reproduced |\n\n"
+                             "2 reproduced, 1 not measured.")
+    assert len(VERDICTS) == 5
     assert Claim("AC00", "c", "2", "partly").bullet() == "- AC00: c. Ours: 2 -- **partly**."
 
 
 def test_within_a_factor_either_way():
     assert [within(v, 100, 3) for v in (33.4, 300, 301, 33.3)] == ["reproduced"] * 2 + ["not reproduced"] * 2
     assert [within(v, -47, 1.5) for v in (-60, -31.4, -71, -31)] == ["reproduced"] * 2 + ["not reproduced"] * 2
+    assert within(50, 100, 2) == within(200, 100, 2) == "reproduced"        # both ends count
 
 
 def run(df, env="square", agent="dgpq", **env_settings):

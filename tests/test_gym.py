@@ -270,15 +270,28 @@ def test_the_reproduction_runs_each_learner_at_the_comparisons_budget_and_dqn_at
     assert plan["acrobot-dqn-zoo"]["agent"]["exploration_steps"] == 12_000
     assert plan["cartpole-dgpq"]["env"]["observations"] == "unit" and plan["cartpole-dqn"]["env"]["observations"] == "raw"
     assert set(experiments("smoke", ["gym"])) == {n for n in plan if n.startswith("cartpole-")}
+    from trl_dgpq.envs.gym.analysis import reproductions
+    sizes = {name: own for name, _, own in reproductions()}
+    assert sizes["cartpole-dqn-zoo"] == {"smoke": (1, 100_000, 300), "quick": (3, 100_000, 12_500),
+                                         "full": (10, 100_000, 50_000), "report": (10, 100_000, 50_000)}
+    assert sizes["mountaincar-dgpq"] == {"quick": (3, 100_000, 7_500), "full": (10, 100_000, 30_000),
+                                         "report": (10, 100_000, 30_000)}   # no smoke: one task is enough
+    assert sizes["cartpole-dgpq"]["smoke"] == (1, 100_000, 300)
+    assert all(isinstance(steps, int) for own in sizes.values() for _, _, steps in own.values())
+    settings = {name: s for name, s, _ in reproductions()}
+    assert settings["cartpole-dqn-zoo"] == dict(env="gym:CartPole-v1", agent="dqn", preset="zoo")
+    assert settings["acrobot-dgpq-tuned"] == dict(env="gym:Acrobot-v1", agent="dgpq", preset="tuned")
+    assert [n for n in sizes if n.startswith("cartpole-")] == ["cartpole-dgpq", "cartpole-dgpq-tuned", "cartpole-dqn",
+                                                               "cartpole-dqn-tuned", "cartpole-dqn-zoo"]
 
 
-def _run(agent: str, met_at, episodes: int = 30, steps: int = 10):
+def _run(agent: str, met_at, episodes: int = 30, steps: int = 10, preset: str = "tuned", budget: int = 300):
     """A CartPole run whose seed k returns 200 from its episode met_at[k] on (None: 20 always)."""
     from trl_dgpq.analysis.runs import Run
     rows = [dict(seed=k, episode=e, steps=steps, env_steps=e * steps,
                  **{"return": 200.0 if m is not None and e >= m else 20.0})
             for k, m in enumerate(met_at) for e in range(1, episodes + 1)]
-    config = {"run": {"env": "gym:CartPole-v1", "agent": agent, "preset": "tuned", "env_steps": episodes * steps}}
+    config = {"run": {"env": "gym:CartPole-v1", "agent": agent, "preset": preset, "env_steps": budget}}
     return Run(None, pd.DataFrame(rows), config)
 
 
@@ -288,10 +301,25 @@ def test_the_claim_holds_is_reversed_or_is_not_shown_by_the_interval_of_p():
     # episode 1; never for the other: counted as the budget (300), so every DGPQ seed is better
     fast = claim(_run("dgpq", [1] * 8), _run("dqn", [None] * 8))
     assert fast.ours == "P(DGPQ improves on DQN) = 1.00 [1.00, 1.00]: DGPQ shown faster"
-    assert fast.verdict == "reproduced" and "(300 steps per seed)" in fast.claim
+    assert fast.verdict == "reproduced" and "(300 steps per seed)" in fast.claim and fast.source == "this suite"
+    # met at episode 34 (340 steps), after the budget of 300: never, as DQN's seeds
+    late = claim(_run("dgpq", [25] * 8, episodes=40), _run("dqn", [None] * 8, episodes=40))
+    assert late.ours == "P(DGPQ improves on DQN) = 0.50 [0.50, 0.50]: neither shown faster"
+    assert late.verdict == "not reproduced"
     slow = claim(_run("dgpq", [None] * 8), _run("dqn", [1] * 8))
     assert slow.ours == "P(DGPQ improves on DQN) = 0.00 [0.00, 0.00]: DQN shown faster"
     assert slow.verdict == "not reproduced"
     same = claim(_run("dgpq", [1, 5, 9, None] * 2), _run("dqn", [1, 5, 9, None] * 2))
     assert same.ours.startswith("P(DGPQ improves on DQN) = 0.50") and same.ours.endswith("neither shown faster")
     assert same.verdict == "not reproduced"
+
+
+def test_claims_pair_dgpq_and_dqn_default_with_default_and_tuned_with_tuned():
+    from trl_dgpq.envs.gym.analysis import claims
+    runs = {"cartpole-dgpq": _run("dgpq", [1] * 4, preset="default"), "cartpole-dqn": _run("dqn", [None] * 4,
+                                                                                         preset="default"),
+            "cartpole-dgpq-tuned": _run("dgpq", [None] * 4), "cartpole-dqn-tuned": _run("dqn", [1] * 4),
+            "mountaincar-dgpq": _run("dgpq", [1] * 4, preset="default")}          # no DQN run: no claim
+    got = claims(runs)
+    assert [c.claim.split(" needs")[0] for c in got] == ["CartPole-v1, default DGPQ", "CartPole-v1, tuned DGPQ"]
+    assert [c.verdict for c in got] == ["reproduced", "not reproduced"] and "than default DQN" in got[0].claim
