@@ -85,12 +85,13 @@ def test_publish_copies_the_report_tables_and_figures_and_nothing_of_the_runs(tm
     out, to = tmp_path / "repro", tmp_path / "results" / "report"
     (out / "square").mkdir(parents=True)
     (out / "square-dgpq" / "jobs" / "0").mkdir(parents=True)
-    for name in ("REPORT.md", "results.csv", "square/qhat.png", "square-dgpq/episodes.csv",
+    for name in ("REPORT.md", "claims.md", "results.csv", "square/qhat.png", "square-dgpq/episodes.csv",
                  "square-dgpq/curve.png", "square-dgpq/jobs/0/checkpoint.pt"):
         (out / name).write_text(name)
     (to / "old").mkdir(parents=True)
     (to / "old" / "gone.png").write_text("x")
     (to / "notes.txt").write_text("kept")
     copied = reproduce.publish(out, to)
-    assert sorted(p.relative_to(to).as_posix() for p in copied) == ["REPORT.md", "results.csv", "square/qhat.png"]
+    assert sorted(p.relative_to(to).as_posix() for p in copied) == ["REPORT.md", "claims.md", "results.csv",
+                                                                    "square/qhat.png"]
     assert not (to / "old" / "gone.png").exists() and (to / "notes.txt").read_text() == "kept"

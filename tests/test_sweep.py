@@ -269,6 +269,7 @@ def test_reproduce_writes_every_figure_and_the_report(tmp_path):
     with open(out / "results.csv") as f:
         rows = list(csv.DictReader(f))
     assert tuple(rows[0]) == results.COLUMNS and {r["experiment"] for r in rows} == set(reproduce.experiments("smoke"))
+    assert (out / "claims.md").read_text().startswith("| source | claim | ours | verdict |")
     assert reproduce.main(["--scale", "smoke", "--out", str(out)]) == 0          # again: nothing to rerun
     assert reproduce.main(["--scale", "quick", "--out", str(out)]) == 2          # another sweep's folder
 

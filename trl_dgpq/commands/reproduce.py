@@ -93,6 +93,7 @@ def write_report(out: Path, scale: str, wall: float, only=None) -> Path:
     summary = ("## Claims, and whether they reproduce\n\nEach claim of GWH14, the seed report, AC00 (the model's "
                "closed form) and this suite's own README, beside what this run measured; the sections below "
                "have the tables and figures.\n\n" + table(claims) + "\n\n") if claims else ""
+    (out / "claims.md").write_text(table(claims) + "\n")   # the table alone: the docs site includes it
     path = out / "REPORT.md"
     path.write_text(head + summary + "\n".join(sections) + "\n" + cost_section(loaded))
     from trl_dgpq.analysis import results
@@ -136,14 +137,14 @@ FIGURES = ("*.png", "*.gif")
 
 
 def publish(out: Path, to: Path) -> list:
-    """REPORT.md, results.csv and the figures of ``out`` (``square/qhat.png``: paths kept; none of
+    """REPORT.md, claims.md, results.csv and the figures of ``out`` (``square/qhat.png``: paths kept; none of
     a run folder's) into ``to``, e.g. results/report: the files the repository keeps. The
     report, tables and figures ``to`` held before go first (nothing else is touched), so it
     holds one run's."""
     import shutil
     figures = [f for pattern in FIGURES for f in out.rglob(pattern)
                if not (f.parent / "episodes.csv").exists() and "jobs" not in f.relative_to(out).parts]
-    keep = [out / "REPORT.md", out / "results.csv", *sorted(figures)]
+    keep = [out / "REPORT.md", out / "claims.md", out / "results.csv", *sorted(figures)]
     if to.exists():
         for old in [f for pattern in ("*.md", "*.csv", *FIGURES) for f in to.rglob(pattern)]:
             old.unlink()
