@@ -44,8 +44,7 @@ reproduce: $(STAMP)
 	$(BIN)/python scripts/reproduce.py
 
 compare: $(STAMP)
-	if [ -f runs/compare/sweep.json ]; then $(BIN)/python scripts/sweep.py --resume runs/compare; \
-	else $(BIN)/python scripts/sweep.py configs/compare.toml --out runs/compare --seeds-per-job 5; fi
+	$(BIN)/python scripts/sweep.py configs/compare.toml --out runs/compare --seeds-per-job 5 --grow
 	$(BIN)/python scripts/report.py runs/compare/*/ --out runs/compare
 
 bench: $(STAMP)

@@ -407,3 +407,19 @@ def test_the_reports_cost_section_sums_each_jobs_rows_and_projects_them(tmp_path
     assert "2 cores 1.50 h, 16 cores 1.50 h" in text     # 1.5 h | 1 h + 0.5 h
     assert "commits 1234567, abcdef1." in text
     assert reproduce.cost_section([(None, {})]) == ""
+
+
+def test_sweep_grow_runs_the_experiments_a_file_gained_and_keeps_the_finished(tmp_path, capsys):
+    one = '[defaults]\nenv = "corridor"\nagent = "constant"\nepisodes = 1\n\n[[experiment]]\nname = "a"\nseeds = [0]\n'
+    out = tmp_path / "s"
+    assert sweep_script.main([str(write(tmp_path, one)), "--out", str(out), "--grow", "--workers", "1"]) == 0
+    rows_a = (out / "a" / "episodes.csv").read_text()
+    two = one + '\n[[experiment]]\nname = "b"\nseeds = [1, 2]\n'
+    capsys.readouterr()
+    assert sweep_script.main([str(write(tmp_path, two)), "--out", str(out), "--grow", "--workers", "1"]) == 0
+    assert "[1/1 jobs done" in capsys.readouterr().out                     # b's job alone ran
+    assert (out / "a" / "episodes.csv").read_text() == rows_a and len(pd.read_csv(out / "b" / "episodes.csv")) == 2
+    changed = two.replace("seeds = [0]", "seeds = [0, 3]")
+    assert sweep_script.main([str(write(tmp_path, changed)), "--out", str(out), "--grow"]) == 2   # a changed
+    with pytest.raises(SystemExit):
+        sweep_script.main([str(write(tmp_path, two)), "--out", str(out), "--grow", "--overwrite"])

@@ -5,6 +5,8 @@ of worker processes here (default) or on a Ray cluster.
     python scripts/sweep.py configs/throughput-square.toml --out runs/sweep --workers 2 --seeds-per-job 8
     python scripts/sweep.py configs/throughput-square.toml --out runs/sweep --backend ray [--ray-address HOST:PORT]
     python scripts/sweep.py --resume runs/sweep          # rerun what has not finished
+    python scripts/sweep.py configs/compare.toml --out runs/compare --grow   # the file gained experiments:
+                                                         # run those, keep the finished ones
 
 The file's format is in ``collectors/sweep.py`` (``read_sweep_file``); every
 experiment is checked before any job starts. Each experiment gets a folder under
@@ -31,6 +33,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="sweep folder")
     p.add_argument("--resume", metavar="OUT", help="continue the sweep in OUT: only unfinished jobs run")
     p.add_argument("--overwrite", action="store_true", help="replace the sweep in --out")
+    p.add_argument("--grow", action="store_true",
+                   help="--out's sweep (if any) takes the file's experiments it lacks and continues; one it "
+                        "holds with other settings is refused by name")
     p.add_argument("--backend", choices=sweep.BACKENDS, default="local",
                    help="local: worker processes here; ray: one Ray task per job")
     p.add_argument("--workers", type=int, default=os.cpu_count(),
@@ -53,6 +58,8 @@ def main(argv=None) -> int:
                          "or --seeds-per-job with it")
     elif not args.file or not args.out:
         parser.error("give a sweep file and --out (or --resume OUT)")
+    if args.grow and args.overwrite:
+        parser.error("--grow keeps the sweep in --out, --overwrite replaces it: give one")
     out = args.resume or args.out
     rerun = f"{command('sweep')} --resume {out}"
 
@@ -61,8 +68,11 @@ def main(argv=None) -> int:
             experiments, jobs = sweep.load(out)
         else:
             experiments = sweep.read_sweep_file(args.file)
-            jobs = sweep.plan(experiments, out, args.seeds_per_job)
-            sweep.create(out, experiments, jobs, overwrite=args.overwrite)
+            if args.grow and os.path.isfile(os.path.join(out, sweep.SWEEP)):
+                jobs = sweep.grow(out, experiments, args.seeds_per_job)
+            else:
+                jobs = sweep.plan(experiments, out, args.seeds_per_job)
+                sweep.create(out, experiments, jobs, overwrite=args.overwrite)
         print(f"sweep -> {out}: {sweep.describe_jobs(jobs)}; backend {args.backend}", flush=True)
         report = sweep.execute(out, jobs, args.backend, args.workers, args.ray_address, args.cpus_per_job,
                                log=lambda line: print(line, flush=True))
