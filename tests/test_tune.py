@@ -204,7 +204,7 @@ def test_reporting_seeds_cover_every_report_and_tuning_seeds_avoid_them():
         analysis = d.analysis()
         own = [e[2] for e in getattr(analysis, "REPRODUCE", []) if len(e) > 2]
         for scales in [getattr(analysis, "SCALES", {}), *own]:
-            given += [seeds for seeds, _ in scales.values()]
+            given += [seeds for seeds, *_ in scales.values()]   # (seeds, episodes[, env steps])
     used = {s for g in given for s in parse_seeds(g)} | set(RunConfig().seeds)
     assert used <= set(REPORTING_SEEDS)
     assert not set(TUNING_SEEDS) & set(REPORTING_SEEDS)
