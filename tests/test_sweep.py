@@ -394,32 +394,24 @@ def test_makespan_gives_each_job_longest_first_to_the_worker_free_first():
 
 def test_the_reports_cost_section_sums_each_jobs_rows_and_projects_them(tmp_path):
     from trl_dgpq.analysis.runs import Run
-    for name, commit in (("a", "abcdef1234"), ("b", "1234567890")):
+    for name, config in (("a", {"git": {"commit": "abcdef1234"}}), ("b", {"git": {"commit": "1234567890"}}),
+                         ("c", {})):                                       # c's job config has no commit
         (tmp_path / name / "jobs" / "j000").mkdir(parents=True)
-        (tmp_path / name / "jobs" / "j000" / "config.json").write_text(json.dumps({"git": {"commit": commit}}))
-    # a: two jobs of 1,800 s and 3,600 s (two rows each); b: one job of 5,400 s
+        (tmp_path / name / "jobs" / "j000" / "config.json").write_text(json.dumps(config))
+    # a: two jobs of 1,800 s and 3,600 s (two rows each); b: one job of 360,000 s (100 h); c: a plain run
+    # folder, no job column: one job of 36 s
     a = pd.DataFrame(dict(seed=[0, 0, 1, 1], job=[0, 0, 1, 1], steps=[10, 10, 10, 10], wall_s=[900.0, 900, 1800, 1800]))
-    b = pd.DataFrame(dict(seed=[0, 1], job=[0, 0], steps=[100, 100], wall_s=[2700.0, 2700]))
-    loaded = [(None, {"a": Run(tmp_path / "a", a, {}), "b": Run(tmp_path / "b", b, {})})]
+    b = pd.DataFrame(dict(seed=[0, 1], job=[0, 0], steps=[100, 100], wall_s=[180_000.0, 180_000]))
+    c = pd.DataFrame(dict(seed=[0, 0], steps=[6, 6], wall_s=[18.0, 18.0]))
+    loaded = [(None, {"a": Run(tmp_path / "a", a, {}), "b": Run(tmp_path / "b", b, {})}),
+              (None, {"c": Run(tmp_path / "c", c, {})})]
     text = reproduce.cost_section(loaded)
-    assert "| a | 2 | 40 | 90.0 | 135000.00 |" in text and "| b | 2 | 200 | 90.0 | 27000.00 |" in text
-    assert "In all 3.00 h of one core over 3 jobs" in text and "the longest job, 1.50 h" in text
-    assert "2 cores 1.50 h, 16 cores 1.50 h" in text     # 1.5 h | 1 h + 0.5 h
-    assert "commits 1234567, abcdef1." in text
+    assert text.startswith("## What it cost\n\nEach experiment's wall time is the sum of its rows' `wall_s` (the time "
+                           "of the seed batch, shared among its seeds; process start-up not counted)")
+    assert ("measured on this machine while other work shared its cores, so a quiet machine is faster.\n\n"
+            "| experiment | seeds | seed-steps | wall, min | ms per seed-step |\n|---|---|---|---|---|\n"
+            "| a | 2 | 40 | 90.0 | 135000.00 |\n| b | 2 | 200 | 6,000.0 | 1800000.00 |\n| c | 1 | 12 | 0.6 | 3000.00 |\n\n"
+            "In all 101.51 h of one core over 4 jobs.") in text
+    assert "the longest job, 100.00 h, bounds it): 2 cores 100.00 h, 16 cores 100.00 h" in text
+    assert text.endswith("Runs made at commits 1234567, ?, abcdef1.\n")
     assert reproduce.cost_section([(None, {})]) == ""
-
-
-def test_sweep_grow_runs_the_experiments_a_file_gained_and_keeps_the_finished(tmp_path, capsys):
-    one = '[defaults]\nenv = "corridor"\nagent = "constant"\nepisodes = 1\n\n[[experiment]]\nname = "a"\nseeds = [0]\n'
-    out = tmp_path / "s"
-    assert sweep_script.main([str(write(tmp_path, one)), "--out", str(out), "--grow", "--workers", "1"]) == 0
-    rows_a = (out / "a" / "episodes.csv").read_text()
-    two = one + '\n[[experiment]]\nname = "b"\nseeds = [1, 2]\n'
-    capsys.readouterr()
-    assert sweep_script.main([str(write(tmp_path, two)), "--out", str(out), "--grow", "--workers", "1"]) == 0
-    assert "[1/1 jobs done" in capsys.readouterr().out                     # b's job alone ran
-    assert (out / "a" / "episodes.csv").read_text() == rows_a and len(pd.read_csv(out / "b" / "episodes.csv")) == 2
-    changed = two.replace("seeds = [0]", "seeds = [0, 3]")
-    assert sweep_script.main([str(write(tmp_path, changed)), "--out", str(out), "--grow"]) == 2   # a changed
-    with pytest.raises(SystemExit):
-        sweep_script.main([str(write(tmp_path, two)), "--out", str(out), "--grow", "--overwrite"])

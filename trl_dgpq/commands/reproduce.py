@@ -112,7 +112,8 @@ def cost_section(loaded) -> str:
     jobs, rows, commits = [], [], set()
     for _, runs in loaded:
         for name, run in runs.items():
-            per_job = run.df.groupby(run.df["job"] if "job" in run.df else 0)["wall_s"].sum()
+            # a sweep experiment's rows carry their job; a plain run folder is one job
+            per_job = (run.df.groupby("job")["wall_s"].sum() if "job" in run.df else run.df[["wall_s"]].sum())
             jobs += list(per_job)
             for config in sorted(Path(run.path).glob("jobs/*/config.json")):   # each job's own run
                 commits.add((json.loads(config.read_text()).get("git", {}).get("commit") or "?")[:7])
