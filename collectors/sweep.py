@@ -344,9 +344,7 @@ def create(out, experiments: Dict[str, dict], jobs: List[Job], overwrite: bool =
         for f in (SWEEP, REPORT):
             (out / f).unlink(missing_ok=True)
     out.mkdir(parents=True, exist_ok=True)
-    for name, config in experiments.items():
-        (out / name).mkdir()
-        runner.RunFolder(out / name).write_json(runner.CONFIG, {**config, **runner.provenance()})
+    _write_experiments(out, experiments)
     _write_plan(out, experiments, jobs)
 
 
@@ -368,12 +366,18 @@ def grow(out, experiments: Dict[str, dict], seeds_per_job: Optional[int],
     added = {k: v for k, v in experiments.items() if k not in recorded}
     kept = [j for j in jobs if j.experiment in recorded]
     new = plan(added, out, seeds_per_job)
-    for name, config in added.items():
+    for name in added:
         shutil.rmtree(Path(out) / name, ignore_errors=True)   # a removed experiment's leftovers
-        (Path(out) / name).mkdir()
-        runner.RunFolder(Path(out) / name).write_json(runner.CONFIG, {**config, **runner.provenance()})
+    _write_experiments(Path(out), added)
     _write_plan(out, {**recorded, **added}, kept + new)
     return kept + new
+
+
+def _write_experiments(out: Path, experiments: Dict[str, dict]) -> None:
+    """Each experiment's folder with its resolved config (all its seeds)."""
+    for name, config in experiments.items():
+        (out / name).mkdir()
+        runner.RunFolder(out / name).write_json(runner.CONFIG, {**config, **runner.provenance()})
 
 
 def _write_plan(out, experiments: Dict[str, dict], jobs: List[Job]) -> None:

@@ -3,6 +3,7 @@ costs against the AC optimum (seed report Figures 6-7), and paired comparisons (
 agent meets the same price paths on the same (seed, episode))."""
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import torch
@@ -258,13 +259,14 @@ def claims(runs: dict) -> list:
                              else "not reproduced"))
     if "liq-dgpq-tuned" in runs:
         d = drift(runs["liq-dgpq-tuned"].df)
-        out.append(Claim("this suite (issue 28's goal)", "tuned DGPQ stops drifting: after episode 1,000 its worst "
-                         "block of 500 within 1.02x of its best, its last 1,000 episodes at most 1.10 U*",
-                         f"{d['worst_over_best']:.2f}x, last 1,000 at {d['last']:.2f} U*",
-                         "reproduced" if d["worst_over_best"] <= 1.02 and d["last"] <= 1.10 else "not reproduced")
-                   if d["worst_over_best"] == d["worst_over_best"] else   # NaN: the run never passed 1,000
-                   Claim("this suite (issue 28's goal)", "tuned DGPQ stops drifting after episode 1,000",
-                         f"the run ended at episode {runs['liq-dgpq-tuned'].df.episode.max()}", "not measured"))
+        if math.isnan(d["worst_over_best"]):   # the run never passed episode 1,000
+            out.append(Claim("this suite (issue 28's goal)", "tuned DGPQ stops drifting after episode 1,000",
+                             f"the run ended at episode {runs['liq-dgpq-tuned'].df.episode.max()}", "not measured"))
+        else:
+            out.append(Claim("this suite (issue 28's goal)", "tuned DGPQ stops drifting: after episode 1,000 its "
+                             "worst block of 500 within 1.02x of its best, its last 1,000 episodes at most 1.10 U*",
+                             f"{d['worst_over_best']:.2f}x, last 1,000 at {d['last']:.2f} U*",
+                             "reproduced" if d["worst_over_best"] <= 1.02 and d["last"] <= 1.10 else "not reproduced"))
     return out
 
 

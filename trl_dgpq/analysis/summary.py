@@ -91,7 +91,3 @@ def count(n: int, noun: str) -> str:
     """"1 seed", "2 seeds", "1,000 episodes"."""
     return f"{n:,} {noun}{'' if n == 1 else 's'}"
 
-
-def agree(ours: float, theirs: float, factor: float = 1.5) -> str:
-    """"agrees" if ``ours`` is within ``factor`` times ``theirs`` either way, else "differs"."""
-    return "agrees" if theirs / factor <= ours <= theirs * factor else "differs"

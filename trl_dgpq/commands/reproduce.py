@@ -15,7 +15,8 @@ pushing, Figure 5; liquidation's agents at both discounts, the course's own DDPG
 6-7) contributes its
 experiments to one sweep (``collectors/sweep.py``: a pool of worker processes, each
 experiment one job) and a section to REPORT.md, which sets our numbers beside the seed
-report's claims and GWH14's, with a sentence on whether they agree. The quick scale
+report's claims and GWH14's (``claims`` in the same file: REPORT.md's first table, each with a
+verdict). The quick scale
 runs fewer seeds and episodes and says so in every title and table.
 """
 from __future__ import annotations
@@ -97,9 +98,7 @@ def write_report(out: Path, scale: str, wall: float, only=None) -> Path:
     path = out / "REPORT.md"
     path.write_text(head + summary + "\n".join(sections) + "\n" + cost_section(loaded))
     from trl_dgpq.analysis import results
-    results.write([results.row(name, load_run(out / name)) for _, analysis in reproductions(only)
-                   for name, *_ in analysis.REPRODUCE if (out / name / "episodes.csv").is_file()],
-                  out / "results.csv")
+    results.write([results.row(name, run) for _, runs in loaded for name, run in runs.items()], out / "results.csv")
     return path
 
 
