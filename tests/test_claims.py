@@ -58,10 +58,18 @@ def test_liquidations_claims_from_costs_paired_with_the_optimum():
     steady = pd.DataFrame([dict(seed=0, episode=e, ac_cost=1.0 + 0.2 + 0.02 * ((e - 1) // 500 - 2),
                                 optimal_ac_cost=1.0) for e in range(1, 3001)])
     d = claims({"liq-dgpq-tuned": run(steady)})[0]
-    assert d.verdict == "not reproduced" and d.ours == "1.05x, last 1,000 at 1.25 U*"   # 1.26 / 1.20
+    assert d.verdict == "not reproduced" and d.ours == "1.05x, last 1,000 at 1.25 U* (3,000 episodes)"  # 1.26 / 1.20
+    assert "DGPQ `tuned`" in d.claim
     flat = steady.assign(ac_cost=1.05)
     assert claims({"liq-dgpq-tuned": run(flat)})[0].verdict == "reproduced"
-    assert claims({"liq-dgpq-tuned": run(flat[flat.episode <= 1000])})[0].verdict == "not measured"
+    early = claims({"liq-dgpq-tuned": run(flat[flat.episode <= 1000])})[0]
+    assert early.verdict == "not measured" and early.ours == "the run ended at episode 1000"
+    # each DGPQ preset with a run gets its own verdict: tuned first, then late
+    both = claims({"liq-dgpq-late": run(flat), "liq-dgpq-tuned": run(steady)})
+    assert [(c.claim.split("`")[1], c.verdict) for c in both] == [("tuned", "not reproduced"), ("late", "reproduced")]
+    # the goal's two bounds: a flat 1.11 fails the last-1,000 bound alone; 1.10 passes it
+    assert claims({"liq-dgpq-late": run(steady.assign(ac_cost=1.11))})[0].verdict == "not reproduced"
+    assert claims({"liq-dgpq-late": run(steady.assign(ac_cost=1.10))})[0].verdict == "reproduced"
 
 
 def test_the_f16s_claims_need_gwh14s_window():

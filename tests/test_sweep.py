@@ -286,6 +286,8 @@ def test_reproduce_only_plans_the_named_domains():
     assert report["f16-05-nothing"]["run"]["episodes"] == 100 and report["f16-dgpq-lq5"]["env"]["decision_steps"] == 1
     assert (report["liq-td3-shortfall"]["run"]["agent"], report["liq-td3-shortfall"]["run"]["episodes"]) == ("td3", 3_000)
     assert report["liq-dgpq-tuned"]["run"]["preset"] == "tuned"
+    late = report["liq-dgpq-late"]                  # issue 28's late-scoring study, at the report's length
+    assert (late["run"]["preset"], late["run"]["episodes"], late["env"]["pace"]) == ("late", 11_000, True)
     with pytest.raises(SystemExit):  # an unknown domain: argparse's one line, exit 2
         reproduce.main(["--only", "nowhere"])
 
