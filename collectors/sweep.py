@@ -8,6 +8,7 @@ worker processes on this machine or as Ray tasks on a cluster.
     OUT/<experiment>/episodes.csv    the jobs' rows, merged and sorted, with a ``job`` column;
                                      written once every job of the experiment has finished
     OUT/report.json                  each job's outcome (finished, failed, killed) and wall time
+    OUT/<experiment>/reused.json     where its jobs were copied from (``reuse``), if they were
 
 A job is (config, seeds): the lock-step batched loop over those seeds, in one process
 with torch at one thread. Why one: a pool of N workers already fills N cores, and the
@@ -371,6 +372,54 @@ def grow(out, experiments: Dict[str, dict], seeds_per_job: Optional[int],
     _write_experiments(Path(out), added)
     _write_plan(out, {**recorded, **added}, kept + new)
     return kept + new
+
+
+REUSED = "reused.json"
+
+
+def reuse(out, jobs: List[Job], sources, same: Callable[[dict, dict], bool] = lambda a, b: a == b,
+          log=print) -> List[Job]:
+    """The jobs of the sweep in ``out``, where an experiment none of whose jobs has begun is
+    the ``same`` as one that finished in a sweep of ``sources``: that one's job folders are
+    copied in (its split into jobs with them) and its source is recorded in the
+    experiment's reused.json. A seed's rows do not depend on its batch or the machine's load,
+    so they are the rows a run here would write; their wall times and commits stay the
+    source's. Nothing is taken from an experiment with a job unfinished."""
+    out = Path(out)
+    experiments, _ = load(out)
+    todo = {name for name in experiments
+            if not any(runner.RunFolder(j.folder).file(runner.CONFIG).is_file() for j in jobs if j.experiment == name)}
+    taken = {}
+    for src in map(Path, sources):
+        if src.resolve() == out.resolve():
+            continue
+        src_experiments, src_jobs = load(src)
+        for name in sorted(todo - set(taken)):
+            for src_name, config in src_experiments.items():
+                done = [j for j in src_jobs if j.experiment == src_name]
+                if same(config, experiments[name]) and done and all(runner.RunFolder(j.folder).finished()
+                                                                    for j in done):
+                    taken[name] = (src / src_name, done)
+                    break
+    for name, (where, done) in taken.items():
+        shutil.rmtree(out / name / "jobs", ignore_errors=True)
+        for j in done:
+            shutil.copytree(j.folder, out / name / "jobs" / Path(j.folder).name,
+                            ignore=shutil.ignore_patterns(runner.LOCK))
+        runner.RunFolder(out / name).write_json(REUSED, {"from": str(where), "jobs": len(done)})
+        log(f"{name}: reused the finished {where} ({count(len(done), 'job')})")
+    if not taken:
+        return jobs
+    new = []
+    for name in experiments:
+        if name in taken:
+            where, done = taken[name]
+            new += [Job(name, j.index, j.seeds, str(out / name / "jobs" / Path(j.folder).name),
+                        _with_seeds(experiments[name], j.seeds)) for j in done]
+        else:
+            new += [j for j in jobs if j.experiment == name]
+    _write_plan(out, experiments, new)
+    return new
 
 
 def _write_experiments(out: Path, experiments: Dict[str, dict]) -> None:

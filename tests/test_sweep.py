@@ -417,3 +417,49 @@ def test_the_reports_cost_section_sums_each_jobs_rows_and_projects_them(tmp_path
     assert "the longest job, 100.00 h, bounds it): 2 cores 100.00 h, 16 cores 100.00 h" in text
     assert text.endswith("Runs made at commits 1234567, ?, abcdef1.\n")
     assert reproduce.cost_section([(None, {})]) == ""
+
+
+def test_reuse_copies_an_experiment_that_finished_elsewhere_with_the_same_settings_only(tmp_path, capsys):
+    """The rows a run here would write (seeds never depend on their batch), taken from a sweep
+    where the same config finished; a config that differs in one setting, one unfinished
+    there, or one begun here runs here."""
+    def square(max_steps=5, episodes=2):
+        return resolve_config(env="square", agent="random", seeds=[0, 1, 2], episodes=episodes, max_steps=max_steps)
+    a = square()
+    src = tmp_path / "src"
+    there = {"done": a, "other": square(max_steps=6), "open": square(episodes=3)}
+    sweep.create(src, there, jobs := sweep.plan(there, src, 2))
+    sweep.execute(src, [j for j in jobs if j.experiment != "open"], "local", 1, log=lambda line: None)
+    out = tmp_path / "here"
+    planned = {"x": a, "y": square(max_steps=7), "z": square(episodes=3), "begun": a}
+    sweep.create(out, planned, jobs := sweep.plan(planned, out, None))
+    (out / "begun" / "jobs" / "j000").mkdir(parents=True)
+    runner.RunFolder(out / "begun" / "jobs" / "j000").write_json(runner.CONFIG, {})     # a job here has begun
+    lines = []
+    jobs = sweep.reuse(out, jobs, [out, src], log=lines.append)        # its own folder among the sources: skipped
+    assert lines == [f"x: reused the finished {src / 'done'} (2 jobs)"]
+    assert [(j.experiment, j.seeds) for j in jobs] == [("x", [0, 1]), ("x", [2]), ("y", [0, 1, 2]), ("z", [0, 1, 2]),
+                                                       ("begun", [0, 1, 2])]
+    assert sweep.load(out)[1] == jobs and json.loads((out / "x" / "reused.json").read_text()) == \
+        {"from": str(src / "done"), "jobs": 2}
+    assert not (out / "x" / "jobs" / "j001" / runner.LOCK).exists()
+    report = sweep.execute(out, [j for j in jobs if j.experiment != "begun"], "local", 1, log=lambda line: None)
+    assert report["x job 0 (seeds 0-1)"]["note"] == "finished before" and report["y job 0 (seeds 0-2)"]["status"] == \
+        "finished"
+    pd.testing.assert_frame_equal(rows(out / "x" / "episodes.csv"), one_process(a, tmp_path / "fresh"))  # x run here
+    assert sweep.reuse(out, jobs, [src], log=lines.append) == jobs and len(lines) == 1   # once only
+    text = ('[defaults]\nseeds = "0-2"\nepisodes = 2\n[[experiment]]\nname = "w"\nenv = "square"\nagent = "random"\n'
+            '[experiment.set]\nmax_steps = 5\n')
+    assert sweep_script.main([str(write(tmp_path, text)), "--out", str(tmp_path / "cli"), "--workers", "1",
+                              "--reuse", str(src)]) == 0
+    assert "w: reused the finished" in capsys.readouterr().out
+
+
+def test_reproduce_reuses_only_an_experiment_equal_in_every_setting():
+    """grow lets a recorded experiment stand when its run section is the same; reuse takes
+    rows from elsewhere only when every env and agent setting is the same too."""
+    a = resolve_config(env="square", agent="dgpq", seeds=[0, 1], episodes=2)
+    b = resolve_config(env="square", agent="dgpq", seeds=[0, 1], episodes=2, lipschitz=2.0)
+    assert reproduce.same_run(a) == reproduce.same_run(b) and reproduce.same_config(a) != reproduce.same_config(b)
+    older = {**a, "run": {k: v for k, v in a["run"].items() if k != "max_memory"}}   # recorded before max_memory
+    assert reproduce.same_config(older) == reproduce.same_config(a)

@@ -52,6 +52,12 @@ def same_run(config: dict) -> dict:
     return to_dict(from_dict(RunConfig, config["run"]))
 
 
+def same_config(config: dict) -> dict:
+    """The whole config, its run section as ``same_run`` reads it: what another sweep's experiment
+    must equal for its rows to be taken as this one's (every env and agent setting included)."""
+    return {**config, "run": same_run(config)}
+
+
 def experiments(scale: str, only=None) -> dict:
     """{experiment name: resolved config} at ``scale``."""
     out = {}
@@ -166,6 +172,9 @@ def main(argv=None) -> int:
     p.add_argument("--only", nargs="+", choices=[d.name for d, _ in reproductions()], default=None, metavar="DOMAIN",
                    help="these domains' experiments and sections only (default: all): "
                         + ", ".join(d.name for d, _ in reproductions()))
+    p.add_argument("--reuse", nargs="+", default=[], metavar="DIR",
+                   help="other sweep folders (e.g. runs/compare): an experiment not begun here that finished "
+                        "there with the same settings is copied in, not run again")
     p.add_argument("--publish", default=None, metavar="DIR",
                    help="copy REPORT.md, results.csv and the figures into DIR when done (what results/ keeps)")
     args = p.parse_args(argv)
@@ -181,8 +190,11 @@ def main(argv=None) -> int:
         else:
             jobs = sweep.plan(planned, out, None)
             sweep.create(out, planned, jobs)
+        if args.reuse:
+            jobs = sweep.reuse(out, jobs, args.reuse, same=lambda a, b: same_config(a) == same_config(b),
+                               log=lambda line: print(line, flush=True))
         jobs.sort(key=lambda j: j.config["run"]["agent"] != "ddpg")   # the longest jobs first (~10 ms per seed-step)
-        print(f"reproduce ({args.scale}) -> {out}: {len(jobs)} experiments, {args.workers} workers", flush=True)
+        print(f"reproduce ({args.scale}) -> {out}: {len(planned)} experiments, {args.workers} workers", flush=True)
         t0 = time.perf_counter()
         report = sweep.execute(out, jobs, "local", args.workers, log=lambda line: print(line, flush=True))
         if sweep.exit_code(report, "the same command"):

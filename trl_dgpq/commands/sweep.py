@@ -36,6 +36,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--grow", action="store_true",
                    help="--out's sweep (if any) takes the file's experiments it lacks and continues; one it "
                         "holds with other settings is refused by name")
+    p.add_argument("--reuse", nargs="+", default=[], metavar="DIR",
+                   help="other sweep folders: an experiment not begun here that finished there with the same "
+                        "settings is copied in, not run again (its reused.json says from where)")
     p.add_argument("--backend", choices=sweep.BACKENDS, default="local",
                    help="local: worker processes here; ray: one Ray task per job")
     p.add_argument("--workers", type=int, default=os.cpu_count(),
@@ -73,6 +76,8 @@ def main(argv=None) -> int:
             else:
                 jobs = sweep.plan(experiments, out, args.seeds_per_job)
                 sweep.create(out, experiments, jobs, overwrite=args.overwrite)
+        if args.reuse:
+            jobs = sweep.reuse(out, jobs, args.reuse, log=lambda line: print(line, flush=True))
         print(f"sweep -> {out}: {sweep.describe_jobs(jobs)}; backend {args.backend}", flush=True)
         report = sweep.execute(out, jobs, args.backend, args.workers, args.ray_address, args.cpus_per_job,
                                log=lambda line: print(line, flush=True))
