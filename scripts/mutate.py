@@ -5,6 +5,8 @@
     make mutate MODULES=collectors/evaluate.py TESTS="tests/test_evaluate.py" K="not push"
     python scripts/mutate.py envs/f16 --tests tests/test_f16.py -k "not slow"
     python scripts/mutate.py envs/f16 --again      # after new tests: retest only the survivors
+    python scripts/mutate.py collectors/sweep.py --tests tests/test_sweep.py -k reuse --only '*x_reuse__mutmut_*'
+                                                   # one function's mutants only
 
 Not part of ``make test`` or CI: it is slow (every mutant reruns the tests that reach its function).
 Needs the ``mutate`` extra (``pip install -e ".[mutate]"``).
@@ -30,6 +32,7 @@ mutants no selected test reaches are listed. Their diffs go to ``mutants/survivo
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import json
 import os
 import re
@@ -171,6 +174,8 @@ def main(argv=None) -> int:
     p.add_argument("--tests", nargs="*", default=None,
                    help="test files or node ids (default: the test files that import the modules)")
     p.add_argument("-k", dest="keyword", default=None, help="pytest -k expression on those tests")
+    p.add_argument("--only", nargs="+", default=[], metavar="PATTERN",
+                   help="mutmut's mutant names to run (fnmatch), e.g. '*x_reuse__mutmut_*' for one function")
     p.add_argument("--max-children", type=int, default=None, help="parallel mutants (default: the cores)")
     p.add_argument("--again", action="store_true",
                    help="keep the last run's mutants; copy tests/ again and retest its survivors and the "
@@ -201,11 +206,12 @@ def main(argv=None) -> int:
         shutil.copytree(ROOT / "tests", STAGE / "tests", ignore=shutil.ignore_patterns("__pycache__"))
         again = [n for statuses in results().values() for n, s in statuses.items() if s in ("survived", "not checked")]
         print(f"mutate: retesting {len(again)} survivors and unchecked mutants with the tests as they are now")
+        again = [n for n in again if not a.only or any(fnmatch.fnmatch(n, pat) for pat in a.only)]
         rc = mutmut("run", *extra, *again, env=env) if again else 0
     else:
         print(f"mutate: {', '.join(sources)} with {' '.join(tests + pytest_args)}")
         stage(sources, tests, pytest_args)
-        rc = mutmut("run", *extra, env=env)
+        rc = mutmut("run", *extra, *a.only, env=env)
     minutes = (time.time() - start) / 60
     found = results()
     if not found:
