@@ -463,3 +463,54 @@ def test_reproduce_reuses_only_an_experiment_equal_in_every_setting():
     assert reproduce.same_run(a) == reproduce.same_run(b) and reproduce.same_config(a) != reproduce.same_config(b)
     older = {**a, "run": {k: v for k, v in a["run"].items() if k != "max_memory"}}   # recorded before max_memory
     assert reproduce.same_config(older) == reproduce.same_config(a)
+
+
+def test_reproduce_reports_the_domains_whose_experiments_all_finished(tmp_path, capsys, monkeypatch):
+    """--report runs nothing: a finished domain gets its section, claims and rows; one still
+    running gets a line naming what it waits for; the head says how far the run got."""
+    from types import SimpleNamespace
+
+    from trl_dgpq.analysis.claims import Claim
+
+    def domain(name, experiments):
+        return (SimpleNamespace(name=name, examples=lambda: ["corridor"]),
+                SimpleNamespace(REPRODUCE=[(e, dict(agent="constant")) for e in experiments], SCALES={"smoke": (1, 2)},
+                                reproduce_section=lambda runs, out, label, title: f"## Section {name} ({len(runs)})\n",
+                                claims=lambda runs: [Claim("GWH14", f"{name} claim", "1", "reproduced")]))
+    monkeypatch.setattr(reproduce, "reproductions", lambda only=None: [domain("a", ["a1", "a2"]),
+                                                                         domain("b", ["b1", "b2", "b3"])])
+    out = tmp_path / "repro"
+    planned = reproduce.experiments("smoke")
+    sweep.create(out, planned, jobs := sweep.plan(planned, out, None))
+    assert reproduce.main(["--scale", "smoke", "--out", str(out), "--report"]) == 0
+    text = (out / "REPORT.md").read_text()
+    assert "Partial: 0 of 5 experiments have finished" in text and "## Claims" not in text
+    assert "## a: not finished\n\n0 of 2 experiments have finished; waiting for a1, a2.\n" in text
+    for job in jobs:                                   # a's experiments finish, and one of b's
+        if job.experiment in ("a1", "a2", "b2"):
+            folder = runner.RunFolder(job.folder)
+            folder.path.mkdir(parents=True)
+            runner.start(job.config, folder, progress=False)
+            sweep.merge(out, job.experiment, [job])
+    capsys.readouterr()
+    assert reproduce.main(["--scale", "smoke", "--out", str(out), "--report", "--publish", str(tmp_path / "pub")]) == 0
+    assert "(3 of 5 experiments finished)" in capsys.readouterr().out
+    text = (out / "REPORT.md").read_text()
+    assert "Partial: 3 of 5 experiments have finished" in text and "## Section a (2)" in text
+    assert "## b: not finished\n\n1 of 3 experiments have finished; waiting for b1, b3.\n" in text
+    assert "## Section b" not in text and "## a: not finished" not in text
+    assert (out / "claims.md").read_text() == ("| source | claim | ours | verdict |\n|---|---|---|---|\n"
+                                               "| GWH14 | a claim | 1 | reproduced |\n\n1 reproduced.\n")
+    assert sorted(pd.read_csv(out / "results.csv").experiment) == ["a1", "a2", "b2"]
+    assert "| b2 | 1 |" in text                                      # what it cost so far counts b2 too
+    assert (tmp_path / "pub" / "REPORT.md").read_text() == text
+    for job in jobs:
+        if job.experiment in ("b1", "b3"):
+            folder = runner.RunFolder(job.folder)
+            folder.path.mkdir(parents=True)
+            runner.start(job.config, folder, progress=False)
+            sweep.merge(out, job.experiment, [job])
+    assert reproduce.main(["--scale", "smoke", "--out", str(out), "--report"]) == 0
+    text = (out / "REPORT.md").read_text()
+    assert "Partial" not in text and "## Section b (3)" in text and "b claim" in text
+    assert reproduce.main(["--scale", "smoke", "--out", str(tmp_path / "none"), "--report"]) == 2
