@@ -413,7 +413,7 @@ def reuse(out, jobs: List[Job], sources, same: Callable[[dict, dict], bool] = la
     new = []
     for name in experiments:
         if name in taken:
-            where, done = taken[name]
+            done = taken[name][1]
             new += [Job(name, j.index, j.seeds, str(out / name / "jobs" / Path(j.folder).name),
                         _with_seeds(experiments[name], j.seeds)) for j in done]
         else:

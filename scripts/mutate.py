@@ -205,8 +205,8 @@ def main(argv=None) -> int:
         shutil.rmtree(STAGE / "tests")
         shutil.copytree(ROOT / "tests", STAGE / "tests", ignore=shutil.ignore_patterns("__pycache__"))
         again = [n for statuses in results().values() for n, s in statuses.items() if s in ("survived", "not checked")]
-        print(f"mutate: retesting {len(again)} survivors and unchecked mutants with the tests as they are now")
         again = [n for n in again if not a.only or any(fnmatch.fnmatch(n, pat) for pat in a.only)]
+        print(f"mutate: retesting {len(again)} survivors and unchecked mutants with the tests as they are now")
         rc = mutmut("run", *extra, *again, env=env) if again else 0
     else:
         print(f"mutate: {', '.join(sources)} with {' '.join(tests + pytest_args)}")
