@@ -1,6 +1,7 @@
 """scripts/tune.py (trl_dgpq/study.py): Optuna studies of an agent's settings, every trial a run
 with the same budget; its objective, search spaces, seeds, pruning, resume and tuned presets."""
 import json
+import re
 import subprocess
 import sys
 import time
@@ -389,6 +390,45 @@ def test_a_study_searches_the_ranges_given_and_keeps_them(tmp_path, capsys, monk
     assert tune.main(["--out", out, "--trials", "2", "--write-preset"]) == 0
     provenance = json.loads((tmp_path / "tuned.json").read_text())["square"]["dgpq"]["tuned"]["provenance"]
     assert provenance["search"] == ["lengthscale=5:6", "eps1=0.5:0.6"]
+
+
+def test_per_dimension_weights_are_searched_as_factors_on_the_base_preset():
+    from trl_dgpq.tuning import Factors, with_ranges
+    space = {"eps1": LogUniform(1e-4, 0.1)}
+    got = with_ranges(space, ["state_scale=0.25:4"], {"state_scale": [400, 0, 240]})
+    assert got == {"eps1": LogUniform(1e-4, 0.1), "state_scale": Factors(0.25, 4.0, (400.0, 0.0, 240.0))}
+    r = got["state_scale"]
+    trial = optuna.trial.FixedTrial({"state_scale_0": 0.5, "state_scale_2": 4.0})   # no parameter for the zero
+    assert r.suggest(trial, "state_scale", 0) == (200.0, 0.0, 960.0)
+    assert r.params("state_scale", [200.0, 0.0, 960.0], 0) == {"state_scale_0": 0.5, "state_scale_2": 4.0}
+    assert r.contains((100.0, 0.0, 60.0), 0) and r.contains((1600.0, 0.0, 960.0), 0)          # the range's ends
+    for outside in [(99.0, 0.0, 240.0), (400.0, 0.0, 961.0), (400.0, 1.0, 240.0), (400.0, 240.0), (0.0, 0.0, 240.0),
+                    0.5]:
+        assert not r.contains(outside, 0), outside
+    with pytest.raises(ValueError, match="the base preset has no state_scale weights to scale"):
+        with_ranges(space, ["state_scale=0.25:4"], {"state_scale": ()})
+    with pytest.raises(ValueError, match="lipschitz is not in the agent's search space .eps1. nor per-dimension"):
+        with_ranges(space, ["lipschitz=1:4"], {"lipschitz": 5.0})                          # a scalar: not weights
+
+
+def test_a_study_searches_each_weight_of_the_metric(tmp_path, capsys):
+    """--search state_scale=LOW:HIGH on weights given on the command line: the first trial runs them
+    (every factor 1), the others scale each nonzero one by its own factor; a zero stays zero."""
+    out = str(tmp_path / "study")
+    assert tune.main([*TINY, "--episodes", "2", "--stages", "1", "--out", out, "--trials", "3", "--state-scale", "2,0",
+                      "--search", "state_scale=0.5:4"]) == 0
+    trials = trials_of(out)
+    assert [sorted(t.params) for t in trials] == [["eps1", "lengthscale", "lipschitz", "noise_var", "sigma_tol2",
+                                                   "state_scale_0"]] * 3
+    assert trials[0].params["state_scale_0"] == 1.0
+    for t in trials:
+        weights = t.user_attrs["settings"]["state_scale"]
+        assert weights == [pytest.approx(2 * t.params["state_scale_0"]), 0.0] and 1 <= weights[0] <= 8
+        config = json.loads((Path(out) / "trials" / f"{t.number:04d}" / "config.json").read_text())
+        assert config["agent"]["state_scale"] == weights
+    assert len({t.params["state_scale_0"] for t in trials}) == 3
+    shown = re.findall(r"state_scale=(\S+)\n", capsys.readouterr().out)                 # each weight to 4 digits
+    assert shown[0] == "2,0" and len(shown) == 3 and all(re.fullmatch(r"\d\.\d{1,3},0", w) for w in shown[1:])
 
 
 def test_a_search_range_outside_the_space_is_refused_before_any_trial(tmp_path, capsys):

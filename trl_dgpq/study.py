@@ -45,7 +45,7 @@ from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import classes, resolve_config, split_overrides
 from trl_dgpq.config import find_leaf, from_dict, setting, to_dict
 from trl_dgpq.presets import check_preset_name, preset_overrides, tuned_name, write_tuned
-from trl_dgpq.tuning import (TUNING_SEEDS, check_tuning_seeds, first_params, parse_range, search_space, suggest,
+from trl_dgpq.tuning import (TUNING_SEEDS, Factors, check_tuning_seeds, first_params, parse_range, search_space, suggest,
                              with_ranges)
 
 HOST = socket.gethostname()
@@ -80,7 +80,9 @@ class TuneConfig:
                          choices=("preset", "sampled"))
     search: Tuple[str, ...] = setting((), "ranges that replace the agent's own, NAME=LOW:HIGH (log-uniform), comma-"
                                           "separated, e.g. lengthscale=1:30,eps1=0.1:3: for a domain whose metric "
-                                          "or reward has another scale than the agent's search space assumes")
+                                          "or reward has another scale than the agent's search space assumes; "
+                                          "state_scale=0.25:4 searches each nonzero weight of the base preset's "
+                                          "metric times its own factor in that range")
 
     FIXED = ("sampler_seed", "stages", "prune_after", "objective", "search", "window", "first")  # kept by the study from its first run
 
@@ -166,7 +168,7 @@ def plain(value):
 def shown(settings: dict) -> str:
     """"lr=0.00123, hidden=64,64"."""
     def text(v):
-        return ",".join(map(str, v)) if isinstance(v, (list, tuple)) else f"{v:.4g}" if isinstance(v, float) else str(v)
+        return ",".join(map(text, v)) if isinstance(v, (list, tuple)) else f"{v:.4g}" if isinstance(v, float) else str(v)
     return ", ".join(f"{k}={text(v)}" for k, v in settings.items())
 
 
@@ -188,9 +190,12 @@ class Study:
                                                  "; the env's measure when the study began")
         agent_cls = classes(self.config["run"])[1]
         given = split_overrides(self.given_agent_env(), *classes(self.config["run"]))
-        space = with_ranges(search_space(agent_cls), self.tune.search)
-        self.space = {k: r for k, r in space.items() if find_leaf(agent_cls.Config, k).key
-                      not in given["agent"]}  # a setting given on the command line is kept, not searched
+        weights = {name: self.value_of("agent", name) for name, _ in map(parse_range, self.tune.search)
+                   if find_leaf(agent_cls.Config, name) is not None}
+        space = with_ranges(search_space(agent_cls), self.tune.search, weights)
+        # a setting given on the command line is kept, not searched; given weights are the base its Factors scale
+        self.space = {k: r for k, r in space.items()
+                      if find_leaf(agent_cls.Config, k).key not in given["agent"] or isinstance(r, Factors)}
         if not self.space:
             raise ValueError("every setting of the search space is given on the command line: nothing to tune")
         self.stages = stage_lengths(self.config["run"], self.tune.stages)

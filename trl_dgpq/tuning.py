@@ -124,6 +124,35 @@ class OfBudget:
         return {f"{name}_fraction": min(max(value / budget, self.low), self.high)}
 
 
+@dataclass(frozen=True)
+class Factors:
+    """Per-dimension weights (``state_scale``): each nonzero weight of ``base`` (the base preset's)
+    times its own factor in [low, high], log-uniform (the optuna parameters ``<name>_<i>``); a
+    zero weight stays zero (that dimension stays out of the metric)."""
+    low: float
+    high: float
+    base: Tuple[float, ...]
+
+    def suggest(self, trial, name: str, budget: int):
+        return tuple(b * trial.suggest_float(f"{name}_{i}", self.low, self.high, log=True) if b else 0.0
+                     for i, b in enumerate(self.base))
+
+    def factors(self, value) -> dict:
+        """{i: value[i] / base[i]} over the nonzero weights; None if ``value`` has another shape or
+        other zeros than ``base``."""
+        value = tuple(value) if isinstance(value, (list, tuple)) else ()
+        if len(value) != len(self.base) or any((v == 0) != (b == 0) for v, b in zip(value, self.base)):
+            return None
+        return {i: v / b for i, (v, b) in enumerate(zip(value, self.base)) if b}
+
+    def contains(self, value, budget: int) -> bool:
+        f = self.factors(value)
+        return f is not None and all(self.low <= x <= self.high for x in f.values())
+
+    def params(self, name: str, value, budget: int) -> dict:
+        return {f"{name}_{i}": x for i, x in self.factors(value).items()}
+
+
 def search_space(agent_cls) -> dict:
     """The ``SEARCH_SPACE`` beside ``agent_cls``'s config (ValueError if none, or if it names a
     setting the config does not have)."""
@@ -155,16 +184,25 @@ def parse_range(text: str) -> Tuple[str, LogUniform]:
     return name.strip(), LogUniform(lo, hi)
 
 
-def with_ranges(space: dict, ranges) -> dict:
-    """``space`` with the entries named in ``ranges`` ("NAME=LOW:HIGH" each) replaced; a name the
-    space does not search is refused, naming those it does."""
-    out = dict(space)
+def with_ranges(space: dict, ranges, values=None) -> dict:
+    """``space`` with the entries named in ``ranges`` ("NAME=LOW:HIGH" each) replaced. A name the
+    space does not search is refused, naming those it does, unless ``values`` ({setting: the
+    base preset's value}) holds per-dimension weights for it (a tuple, e.g. state_scale): those
+    are searched as ``Factors`` of LOW to HIGH on the base's weights."""
+    out, values = dict(space), values or {}
     for text in ranges:
         name, r = parse_range(text)
-        if name not in space:
+        base = values.get(name)
+        if name in space:
+            out[name] = r
+        elif isinstance(base, (list, tuple)) and any(base):
+            out[name] = Factors(r.low, r.high, tuple(float(b) for b in base))
+        elif isinstance(base, (list, tuple)):
+            raise ValueError(f"search range {text!r}: the base preset has no {name} weights to scale; give them "
+                             f"(e.g. --{name.replace('_', '-')} ...) and search factors on them")
+        else:
             raise ValueError(f"search range {text!r}: {name} is not in the agent's search space "
-                             f"({', '.join(space)})")
-        out[name] = r
+                             f"({', '.join(space)}) nor per-dimension weights of the base preset")
     return out
 
 
