@@ -405,7 +405,8 @@ def test_per_dimension_weights_are_searched_as_factors_on_the_base_preset():
     for outside in [(99.0, 0.0, 240.0), (400.0, 0.0, 961.0), (400.0, 1.0, 240.0), (400.0, 240.0), (0.0, 0.0, 240.0),
                     0.5]:
         assert not r.contains(outside, 0), outside
-    with pytest.raises(ValueError, match="the base preset has no state_scale weights to scale"):
+    with pytest.raises(ValueError, match=r"the base preset has no state_scale weights to scale; give them \(e.g. "
+                                         r"--state-scale \.\.\.\)"):
         with_ranges(space, ["state_scale=0.25:4"], {"state_scale": ()})
     with pytest.raises(ValueError, match="lipschitz is not in the agent's search space .eps1. nor per-dimension"):
         with_ranges(space, ["lipschitz=1:4"], {"lipschitz": 5.0})                          # a scalar: not weights
@@ -421,6 +422,7 @@ def test_a_study_searches_each_weight_of_the_metric(tmp_path, capsys):
     assert [sorted(t.params) for t in trials] == [["eps1", "lengthscale", "lipschitz", "noise_var", "sigma_tol2",
                                                    "state_scale_0"]] * 3
     assert trials[0].params["state_scale_0"] == 1.0
+    assert trials[1].distributions["state_scale_0"] == optuna.distributions.FloatDistribution(0.5, 4.0, log=True)
     for t in trials:
         weights = t.user_attrs["settings"]["state_scale"]
         assert weights == [pytest.approx(2 * t.params["state_scale_0"]), 0.0] and 1 <= weights[0] <= 8
