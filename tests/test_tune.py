@@ -322,7 +322,7 @@ def test_the_best_trial_round_trips_as_the_tuned_preset(tmp_path, monkeypatch):
     monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
     out = tmp_path / "study"
     study = Study.open(out, None, {"env": "square", "agent": "dqn", "preset": "noisy", "episodes": "4",
-                                   "gamma": "0.8"}, {"first": "sampled"})
+                                   "gamma": "0.8"}, {"first": "sampled", "window": 7})
     best = {"lr": 0.003, "hidden": [128, 128], "eps_end": 0.07, "exploration_steps": 900}
     for value, settings in [(50.0, {"lr": 0.0002}), (20.0, best)]:
         study.load().add_trial(optuna.trial.create_trial(value=value, user_attrs={"settings": settings}))
@@ -336,7 +336,7 @@ def test_the_best_trial_round_trips_as_the_tuned_preset(tmp_path, monkeypatch):
     provenance = json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]["noisy-tuned"]["provenance"]
     assert provenance["trial"] == 1 and provenance["value"] == 20.0 and provenance["seeds"] == list(TUNING_SEEDS)
     assert provenance["base_preset"] == "noisy" and provenance["study"] == f"sqlite:///{out.resolve() / 'study.db'}"
-    assert {"date", "commit", "budget", "trials", "objective"} <= set(provenance)
+    assert {"date", "commit", "budget", "trials", "objective"} <= set(provenance) and provenance["window"] == 7
 
 
 def test_a_study_writes_its_preset_under_the_name_given_and_never_over_a_hand_set_one(tmp_path, monkeypatch, capsys):

@@ -554,7 +554,8 @@ class Study:
         sections["agent"].update(best.user_attrs["settings"])
         return name, write_tuned(run["env"], run["agent"], name, sections, dict(
             study=self.url, study_name=self.name, trial=best.number, trials=sum(map(len, ended.values())),
-            objective=self.objective.name, direction=self.objective.direction, value=best.value,
+            objective=self.objective.name, window=self.tune.window, direction=self.objective.direction,
+            value=best.value,
             base_preset=run["preset"], budget=dict(episodes=run["episodes"], env_steps=run["env_steps"]),
             seeds=run["seeds"], date=time.strftime("%Y-%m-%d %H:%M:%S"), commit=provenance()["git"]["commit"],
             **({"search": list(self.tune.search)} if self.tune.search else {}),
