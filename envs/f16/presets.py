@@ -87,6 +87,10 @@ FLIGHT = dict(decision_steps=5, max_steps=40)
 # holds (-136, both); L_Q 20 -152 and -218; the first lengthened to 1,000 holds (-135 at 901-1,000, Q̂ ~860
 # pairs): the pulse's advantage depends on alpha and q, which that metric merges (Q's slope up to 470 per
 # unit). Its 30-trial study (the flight-05 study's ranges): best -132.7, nothing better than holding.
+# Its metric's weights searched (tune --search state_scale=0.05:2,lengthscale=1:30,eps1=0.1:5, L_Q 5,
+# seeds 1000-1004; docs/domains/f16.md): scored at episodes 91-100, 40 trials, best -133.4 (holding, none
+# better); at 251-300, 30 trials, best -117.3 (two of five seeds fly), -132.8 on seeds 1005-1014 -> the
+# preset "flight-05-tuned" (tuned.json); on seeds 0-9 x 300 episodes it holds: -136 at 251-300 (L_Q 10 -139).
 FLIGHT_05 = dict(decision_steps=10, max_steps=20, h_max=10_000.0, attitude_max=1.5, rate_max=10.0)
 
 PRESETS = {
