@@ -474,9 +474,11 @@ def test_reproduce_reports_the_domains_whose_experiments_all_finished(tmp_path, 
 
     def domain(name, experiments):
         return (SimpleNamespace(name=name, examples=lambda: ["corridor"]),
-                SimpleNamespace(REPRODUCE=[(e, dict(agent="constant")) for e in experiments], SCALES={"smoke": (1, 2)},
-                                reproduce_section=lambda runs, out, label, title: f"## Section {name} ({len(runs)})\n",
-                                claims=lambda runs: [Claim("GWH14", f"{name} claim", "1", "reproduced")]))
+                SimpleNamespace(REPRODUCE=[(e, dict(agent="constant")) for e in experiments], SCALES={"smoke": (1, 2), "report": (1, 2), "full": (1, 2)},
+                                reproduce_section=lambda runs, out, label, title: calls.append((out, label, title))
+                                or f"## Section {name} ({len(runs)})\n",
+                                claims=lambda runs: [Claim("GWH14", f"{name} claim", str(len(runs)), "reproduced")]))
+    calls = []
     both = [domain("a", ["a1", "a2"]), domain("b", ["b1", "b2", "b3"])]
     monkeypatch.setattr(reproduce, "reproductions", lambda only=None: [d for d in both if not only or d[0].name in only])
     out = tmp_path / "repro"
@@ -485,6 +487,7 @@ def test_reproduce_reports_the_domains_whose_experiments_all_finished(tmp_path, 
     assert reproduce.main(["--scale", "smoke", "--out", str(out), "--report"]) == 0
     text = (out / "REPORT.md").read_text()
     assert "Partial: 0 of 5 experiments have finished" in text and "## Claims" not in text
+    assert "the run continues with the same command.\n\n## a: not finished" in text             # no claims: nothing
     assert "## a: not finished\n\n0 of 2 experiments have finished; waiting for a1, a2.\n" in text
     for job in jobs:                                   # a's experiments finish, and one of b's
         if job.experiment in ("a1", "a2", "b2"):
@@ -496,24 +499,37 @@ def test_reproduce_reports_the_domains_whose_experiments_all_finished(tmp_path, 
     assert reproduce.main(["--scale", "smoke", "--out", str(out), "--report", "--publish", str(tmp_path / "pub")]) == 0
     assert "(3 of 5 experiments finished)" in capsys.readouterr().out
     text = (out / "REPORT.md").read_text()
-    assert "Partial: 3 of 5 experiments have finished" in text and "## Section a (2)" in text
+    assert ("**Partial: 3 of 5 experiments have finished.** A domain's section and claims appear once all its "
+            "experiments have; the run continues with the same command.\n\n## Claims") in text
+    assert "## Section a (2)" in text and text.startswith("# Reproduction of the seed report (smoke scale)\n")
+    assert calls == [(out, "*Scale: smoke* -- fewer seeds and episodes than the seed report (the smoke scale; numbers "
+                           "are noisier): a 1 seed x 2 episodes, b 1 seed x 2 episodes (some agents fewer: see the "
+                           "tables).", "smoke scale (fewer seeds and episodes than the seed report)")]
     assert "## b: not finished\n\n1 of 3 experiments have finished; waiting for b1, b3.\n" in text
     assert "## Section b" not in text and "## a: not finished" not in text
     assert (out / "claims.md").read_text() == ("| source | claim | ours | verdict |\n|---|---|---|---|\n"
-                                               "| GWH14 | a claim | 1 | reproduced |\n\n1 reproduced.\n")
+                                               "| GWH14 | a claim | 2 | reproduced |\n\n1 reproduced.\n")
     assert sorted(pd.read_csv(out / "results.csv").experiment) == ["a1", "a2", "b2"]
     assert "| b2 | 1 |" in text                                      # what it cost so far counts b2 too
     assert (tmp_path / "pub" / "REPORT.md").read_text() == text
     assert reproduce.main(["--scale", "smoke", "--out", str(out), "--only", "a", "--report"]) == 0   # a is whole
     text = (out / "REPORT.md").read_text()
     assert "reproduce.py --scale smoke --only a` on " in text and "Partial" not in text and "Section b" not in text
+    assert calls[-1][1].startswith("*Scale: smoke* -- fewer seeds and episodes than the seed report (the smoke scale; "
+                                   "numbers are noisier): a 1 seed x 2 episodes (some")            # a's alone
+    assert reproduce.main(["--scale", "smoke", "--out", str(out), "--only", "a", "b", "--report"]) == 0
+    assert "reproduce.py --scale smoke --only a b` on " in (out / "REPORT.md").read_text()
     for job in jobs:
         if job.experiment in ("b1", "b3"):
             folder = runner.RunFolder(job.folder)
             folder.path.mkdir(parents=True)
             runner.start(job.config, folder, progress=False)
             sweep.merge(out, job.experiment, [job])
-    assert reproduce.main(["--scale", "smoke", "--out", str(out), "--report"]) == 0
+    for dirty in (True, False):           # the commit's marker says whether the work tree had changes
+        monkeypatch.setattr(reproduce.runner, "provenance", lambda: {"git": {"commit": "abc1234", "dirty": dirty}})
+        assert reproduce.main(["--scale", "smoke", "--out", str(out), "--report"]) == 0
+        assert ("commit abc1234 (dirty), " in (out / "REPORT.md").read_text()) is dirty
+        assert "commit abc1234, " in (out / "REPORT.md").read_text() or dirty
     text = (out / "REPORT.md").read_text()
     import re
     claims = (out / "claims.md").read_text().removesuffix("\n")
@@ -524,5 +540,14 @@ def test_reproduce_reports_the_domains_whose_experiments_all_finished(tmp_path, 
         r"form\) and this suite's own README, beside what this run measured; the sections below have the tables and "
         r"figures.\n\n" + re.escape(claims) + r"\n\n## Section a \(2\)\n\n## Section b \(3\)\n\n## What it cost\n.*",
         text, re.S), text[:800]
-    assert "b claim" in claims
+    assert "| a claim | 2 |" in claims and "| b claim | 3 |" in claims
+    calls.clear()
+    del both[1][1].claims                                   # a domain without claims: its section alone
+    reproduce.write_report(out, "report", 600.0)            # the report scale's title and label; the wall time
+    text = (out / "REPORT.md").read_text()
+    assert "sweep wall time 10.0 min (this invocation)" in text and "b claim" not in text and "a claim" in text
+    assert [c[1:] for c in calls] == [("*Scale: report* -- the seed report's lengths: a 1 seed x 2 episodes, b 1 seed "
+                                       "x 2 episodes (some agents fewer: see the tables).", "report scale")] * 2
+    reproduce.write_report(out, "full", 0.0)
+    assert calls[-1][2] == "full scale" and calls[-1][1].startswith("*Scale: full* -- the seed report's lengths: ")
     assert reproduce.main(["--scale", "smoke", "--out", str(tmp_path / "none"), "--report"]) == 2
