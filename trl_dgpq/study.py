@@ -45,8 +45,8 @@ from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import classes, resolve_config, split_overrides
 from trl_dgpq.config import find_leaf, from_dict, setting, to_dict
 from trl_dgpq.presets import check_preset_name, preset_overrides, tuned_name, write_tuned
-from trl_dgpq.tuning import (TUNING_SEEDS, Factors, check_tuning_seeds, first_params, parse_range, search_space, suggest,
-                             with_ranges)
+from trl_dgpq.tuning import (TUNING_SEEDS, Factors, check_tuning_seeds, first_params, parse_range, search_space,
+                             suggest, with_ranges)
 
 HOST = socket.gethostname()
 KEEP = (runner.CONFIG, runner.STATUS, runner.EPISODES)  # what an ended trial's folder keeps
