@@ -140,8 +140,8 @@ def test_given_bounds_and_step_cap():
 
 def test_batch_composition_invariance_on_cartpole():
     """Seed 4 alone equals seed 4 among others, for the env and for DGPQ and DQN on it."""
-    for agent, extra in (("dgpq", {}), ("dqn", dict(batch_size=8, learning_starts=16, train_freq=4, hidden=(16,),
-                                                    exploration_steps=100))):
+    for agent, extra in (("dgpq", {}), ("dqn", dict(batch_size=8, learning_starts=16, train_freq=4, gradient_steps=2,
+                                                    hidden=(16,), exploration_steps=100))):
         cfg = dict(env="gym:CartPole-v1", agent=agent, episodes=6, **extra)
         both = run_experiment(resolve_config(seeds=[2, 4, 9], **cfg), progress=False)
         alone = run_experiment(resolve_config(seeds=[4], **cfg), progress=False)
