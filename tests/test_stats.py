@@ -1,9 +1,11 @@
 """IQM, probability of improvement and profiles (trl_dgpq/analysis/stats.py, via rliable), by hand."""
+import warnings
+
 import numpy as np
 import pytest
 
 from trl_dgpq.analysis import Threshold
-from trl_dgpq.analysis.stats import iqm, normalised, oriented, probability_of_improvement, profiles
+from trl_dgpq.analysis.stats import iqm, iqm_point, normalised, oriented, probability_of_improvement, profiles
 
 
 def test_iqm_is_the_mean_of_the_middle_half_and_its_interval_holds_it():
@@ -15,6 +17,11 @@ def test_iqm_is_the_mean_of_the_middle_half_and_its_interval_holds_it():
         assert iqm([8.0, 1.0, 7.0, 2.0, 6.0, 3.0, 5.0, 4.0]) == (point, lo, hi)
     assert np.array_equal(np.random.get_state()[1], before)
     assert np.isnan(iqm([np.nan])[0])
+    assert iqm_point([8.0, 1.0, 7.0, 2.0, 6.0, 3.0, 5.0, 4.0, np.nan]) == 4.5
+    assert iqm_point([2.0, None, 4.0]) == 3.0          # None is missing too (a column read as objects)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                 # NaN when nothing is left, without numpy's empty-mean warning
+        assert np.isnan(iqm_point([np.nan]))
 
 
 def test_probability_of_improvement_counts_pairs_and_ties():
@@ -43,6 +50,13 @@ def test_tasks_are_scaled_by_the_lowest_and_highest_run_and_profiles_count_runs_
     np.testing.assert_allclose(curves["a"], [2 / 4, 1 / 4])   # a: 0, 0, 1, 0.5 -> above 0.25: 2; above 0.75: 1
     np.testing.assert_allclose(curves["b"], [3 / 4, 1 / 4])
     assert cis["a"].shape == (2, 2)
+
+
+def test_a_task_every_run_tied_on_is_one_half_and_runs_are_cut_to_the_fewest_over_tasks():
+    scores = normalised({"a": {"t1": np.array([1.0, 1.0, 1.0]), "t2": np.array([0.0, 4.0])},
+                         "b": {"t1": np.array([1.0, 1.0, 1.0]), "t2": np.array([2.0, 2.0, 2.0])}})
+    np.testing.assert_array_equal(scores["a"], [[0.5, 0.0], [0.5, 1.0]])   # t1: 3 runs each, all tied
+    np.testing.assert_array_equal(scores["b"], [[0.5, 0.5], [0.5, 0.5]])   # t2 has 2 of a's: 2 rows
 
 
 def test_intervals_are_the_same_in_another_process():

@@ -61,12 +61,11 @@ def aggregate_iqm(scores: np.ndarray) -> float:
 
 
 def probability_of_improvement_1task(x: np.ndarray, y: np.ndarray) -> float:
-    """rliable's ``probability_of_improvement`` on one task (``x`` (n, 1), ``y`` (m, 1)): 0.5 for
-    identical runs, else Mann-Whitney's U of x over y -- the pairs where x is greater, ties
-    counted half (exact in floats, as scipy's rank sums are) -- divided by n m."""
+    """rliable's ``probability_of_improvement`` on one task (``x`` (n, 1), ``y`` (m, 1)):
+    Mann-Whitney's U of x over y -- the pairs where x is greater, ties counted half (exact in
+    floats, as scipy's rank sums are) -- divided by n m. (rliable returns 0.5 for identical
+    runs without scipy; U is n^2 / 2 there, so this gives the same.)"""
     x, y = np.ravel(x), np.ravel(y)
-    if np.array_equal(x, y):
-        return 0.5
     u = np.count_nonzero(x[:, None] > y[None, :]) + 0.5 * np.count_nonzero(x[:, None] == y[None, :])
     return u / (len(x) * len(y))
 
