@@ -195,7 +195,8 @@ def test_a_reward_domain_summary_gives_the_reward_and_evaluate_the_domains_forma
     import pandas as pd
     from trl_dgpq.envs import domain
     out = tmp_path / "f16"
-    assert train.main(["--env", "f16", "--seeds", "2", "--episodes", "4", "--out", str(out), "--no-progress"]) == 0
+    assert train.main(["--env", "f16", "--seeds", "2", "--episodes", "4", "--max-steps", "20", "--out", str(out),
+                       "--no-progress"]) == 0
     text = capsys.readouterr().out
     df = pd.read_csv(out / "episodes.csv")
     first = df[df.episode <= 2]["return"].mean()
