@@ -386,7 +386,8 @@ def test_a_full_disk_stops_the_run_in_one_line_and_resume_finishes_the_same_csv(
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 
-    common = ["--agent", "random", "--seeds", "2", "--episodes", "60", "--checkpoint-every", "5", "--no-progress"]
+    common = ["--agent", "random", "--seeds", "2", "--episodes", "60", "--max-steps", "20", "--checkpoint-every", "5",
+              "--no-progress"]   # 20-step episodes: the rows and checkpoints (the sizes above) at a tenth of the steps
     assert run(*common[:-1], "--out", tmp_path / "whole") == 0
     done = subprocess.run([sys.executable, str(TRAIN), *common, "--out", str(tmp_path / "part")],
                           capture_output=True, text=True, preexec_fn=small_files, timeout=300)
