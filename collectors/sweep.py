@@ -450,15 +450,21 @@ def load(out) -> tuple:
 
 def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int] = None,
             ray_address: Optional[str] = None, cpus_per_job: float = 1, log=print) -> dict:
-    """Run the jobs that have not finished; merge each experiment whose jobs all finished.
+    """Run the jobs that have not finished; merge each experiment as soon as its jobs all
+    have (so that a sweep of many hours can be read before it ends: ``reproduce --report``).
     Returns the report {job name: outcome} (also in OUT/report.json)."""
     if backend not in BACKENDS:
         raise SweepError(f"backend must be one of {BACKENDS}, got {backend!r}")
     out = Path(out)
     todo = [j for j in jobs if not runner.RunFolder(j.folder).finished()]
     report = {j.name: dict(status="finished", seeds=j.seeds, note="finished before") for j in jobs if j not in todo}
-    t0, done, finished = time.perf_counter(), [0], []
+    t0, done, finished, merged = time.perf_counter(), [0], [], set()
     names = {j.name for j in todo}
+
+    def merge_if_done(name: str) -> None:
+        if name not in merged and merge(out, name, [j for j in jobs if j.experiment == name]) is not None:
+            merged.add(name)
+            log(f"{name}: all jobs finished -> {out / name / runner.EPISODES}")
 
     def on_done(job: Job, result: dict) -> None:
         done[0] += 1
@@ -475,16 +481,16 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
         line = (f"[{done[0]}/{len(todo)} jobs done, {failed} not finished, {left} to go{running}; "
                 f"{minutes:.1f} min{eta}] {job.name}: {result['status']}")
         log(line + (f" -- {result['reason']}" if result.get("reason") else ""))
+        merge_if_done(job.experiment)
         runner.RunFolder(out).write_json(REPORT, report)
 
+    for name in dict.fromkeys(j.experiment for j in jobs if j not in todo):   # finished before, or reused
+        merge_if_done(name)
     if todo:
         if backend == "local":
             run_local(todo, workers or os.cpu_count() or 1, on_done)
         else:
             run_ray(todo, ray_address, cpus_per_job, on_done)
-    for name in dict.fromkeys(j.experiment for j in jobs):
-        if merge(out, name, [j for j in jobs if j.experiment == name]) is not None:
-            log(f"{name}: all jobs finished -> {out / name / runner.EPISODES}")
     runner.RunFolder(out).write_json(REPORT, report)
     return report
 

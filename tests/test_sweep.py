@@ -304,6 +304,13 @@ def test_each_finished_job_reports_how_many_are_done_failed_and_to_go(tmp_path):
     assert [line.split(";")[0] for line in progress] == [f"[{k}/3 jobs done, 0 not finished, {3 - k} to go"
                                                         + (" (1 running)" if k < 3 else "") for k in (1, 2, 3)]
     assert [("min left at this rate" in line) for line in progress] == [True, True, False]
+    # each experiment's rows are merged once its own jobs have finished, not when the sweep ends
+    # (a report of a sweep of many hours reads them), and ones that finished before on the next call
+    assert ["job" if "jobs done" in line else line.split(":")[0] for line in lines] == ["job", "job", "a", "job", "b"]
+    (tmp_path / "s" / "a" / "episodes.csv").unlink()
+    again = []
+    sweep.execute(tmp_path / "s", jobs, "local", 1, log=again.append)
+    assert [line.split(":")[0] for line in again] == ["a", "b"] and (tmp_path / "s" / "a" / "episodes.csv").is_file()
 
 
 def test_the_time_left_is_weighed_by_each_jobs_planned_steps():
