@@ -63,9 +63,9 @@ def our_schedule(cfg, total):
 
 
 @pytest.mark.parametrize("zoo", [
-    # CartPole-v1's zoo settings at a tenth of the budget; Acrobot-v1's (gradient_steps -1, learning
+    # CartPole-v1's zoo settings at a twentieth of the budget; Acrobot-v1's (gradient_steps -1, learning
     # starts 0) and MountainCar-v0's; and a case where train_freq does not divide learning_starts
-    dict(total=5_000, learning_starts=1_000, train_freq=256, gradient_steps=128, target_update_interval=10,
+    dict(total=2_600, learning_starts=1_000, train_freq=256, gradient_steps=128, target_update_interval=10,
          exploration_fraction=0.16, eps_end=0.04),
     dict(total=600, learning_starts=0, train_freq=4, gradient_steps=-1, target_update_interval=250,
          exploration_fraction=0.12, eps_end=0.1),
