@@ -73,14 +73,14 @@ def experiments(scale: str, only=None) -> dict:
     return out
 
 
-def in_order(jobs: list, workers: int, only=None) -> list:
+def in_order(jobs: list, workers: int) -> list:
     """The order the jobs run in. On one worker, domain by domain, the domain of fewest planned
     seed-steps first and its jobs shortest first: a run of many hours completes a section of
     the report (``--report``) as early as it can. On more, the longest first (DDPG and TD3:
     their per-step cost is 2-30x the others'), so that no long job starts last."""
     if workers > 1:
         return sorted(jobs, key=lambda j: j.config["run"]["agent"] not in ("ddpg", "td3"))
-    domain_of = {name: d.name for d, analysis in reproductions(only) for name, *_ in analysis.REPRODUCE}
+    domain_of = {name: d.name for d, analysis in reproductions() for name, *_ in analysis.REPRODUCE}
     steps = [sweep.planned_seed_steps(j) for j in jobs]
     per_domain = {}
     for j, n in zip(jobs, steps):
@@ -241,7 +241,7 @@ def main(argv=None) -> int:
         if args.reuse:
             jobs = sweep.reuse(out, jobs, args.reuse, same=lambda a, b: same_config(a) == same_config(b),
                                log=lambda line: print(line, flush=True))
-        jobs = in_order(jobs, args.workers, args.only)
+        jobs = in_order(jobs, args.workers)
         print(f"reproduce ({args.scale}) -> {out}: {len(planned)} experiments, {args.workers} workers", flush=True)
         t0 = time.perf_counter()
         report = sweep.execute(out, jobs, "local", args.workers, log=lambda line: print(line, flush=True))
