@@ -194,14 +194,22 @@ from trl_dgpq.agents import agent_class  # noqa: E402
 from trl_dgpq.envs.f16.baselines import lqr_gain  # noqa: E402
 
 
-def test_lqr_gain_solves_the_discrete_riccati_equation():
+@pytest.mark.parametrize("dt, r", [(0.05, 0.3), (0.25, 0.1), (1.0, 0.1)])
+def test_lqr_gain_solves_the_discrete_riccati_equation(dt, r):
     scipy_linalg = pytest.importorskip("scipy.linalg")
-    a, b = discretise(0.05)
+    a, b = discretise(dt)
     rate = torch.tensor([0.0, 0.0, -V_T0, V_T0, 0.0], dtype=torch.float64) / 100
     q = torch.diag(torch.tensor([1e-4, 0, 0, 0, 0], dtype=torch.float64)) + torch.outer(rate, rate)
-    p = scipy_linalg.solve_discrete_are(a.numpy(), b.numpy()[:, None], q.numpy(), np.array([[0.3]]))
-    k = (b.numpy() @ p @ a.numpy()) / (0.3 + b.numpy() @ p @ b.numpy())
-    np.testing.assert_allclose(lqr_gain(a, b, q, 0.3).numpy(), k, rtol=1e-6)
+    p = scipy_linalg.solve_discrete_are(a.numpy(), b.numpy()[:, None], q.numpy(), np.array([[r]]))
+    k = (b.numpy() @ p @ a.numpy()) / (r + b.numpy() @ p @ b.numpy())
+    np.testing.assert_allclose(lqr_gain(a, b, q, r).numpy(), k, rtol=1e-12)
+
+
+def test_lqr_gain_refuses_a_mode_the_elevator_cannot_reach():
+    """x1 doubles every step and u never moves it: no gain stabilises it, so no solution to return."""
+    a, b = torch.diag(torch.tensor([2.0, 0.5], dtype=torch.float64)), torch.tensor([0.0, 1.0], dtype=torch.float64)
+    with pytest.raises(ValueError, match="did not converge in 64 doublings"):
+        lqr_gain(a, b, torch.eye(2, dtype=torch.float64), 1.0)
 
 
 @pytest.mark.parametrize("agent, most", [("lqr", 25.0), ("pd", 30.0)])

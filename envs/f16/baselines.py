@@ -26,18 +26,20 @@ from trl_dgpq.config import setting
 from .dynamics import V_T0, climb_rate, discretise, rows_times
 
 
-def lqr_gain(a: torch.Tensor, b: torch.Tensor, q: torch.Tensor, r: float, iterations: int = 20_000) -> torch.Tensor:
-    """K of u = −K x minimising Σ x'Qx + r u² for x+ = Ax + bu: the Riccati recursion
-    iterated to its fixed point (float64)."""
-    p = q.clone()
+def lqr_gain(a: torch.Tensor, b: torch.Tensor, q: torch.Tensor, r: float, iterations: int = 64) -> torch.Tensor:
+    """K of u = −K x minimising Σ x'Qx + r u² for x+ = Ax + bu (float64). The Riccati equation's
+    solution P by the structure-preserving doubling algorithm (Chu, Fan, Lin & Wang 2004): each
+    iteration doubles the horizon, so it converges in ~15 where the plain recursion took ~12,000."""
+    n, eye = a.shape[0], torch.eye(a.shape[0], dtype=a.dtype)
+    a_k, g, p = a, torch.outer(b, b) / r, q
     for _ in range(iterations):
-        pb = p @ b
-        k = (b @ p @ a) / (r + b @ pb)
-        p_next = q + a.T @ p @ a - torch.outer(a.T @ pb, k)
-        if torch.allclose(p_next, p, rtol=1e-12, atol=1e-12):
-            break
+        w = torch.linalg.solve(eye + g @ p, torch.cat([a_k, g], 1))      # (I + G P)⁻¹ [A_k, G]
+        p_next = p + a_k.T @ p @ w[:, :n]
+        g, a_k = g + a_k @ w[:, n:] @ a_k.T, a_k @ w[:, :n]
+        if torch.allclose(p_next, p, rtol=1e-14, atol=0):
+            return (b @ p_next @ a) / (r + b @ p_next @ b)
         p = p_next
-    return (b @ p @ a) / (r + b @ p @ b)
+    raise ValueError(f"the Riccati equation did not converge in {iterations} doublings: is (a, b) stabilisable?")
 
 
 def quantised(command: torch.Tensor, elevator_deg: float) -> torch.Tensor:
