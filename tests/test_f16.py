@@ -496,3 +496,101 @@ def test_the_start_spread_continues_exactly_from_a_saved_state_and_an_older_stat
     assert torch.equal(starts(a, 2), starts(b, 2))
     old = {k: v for k, v in F16Env([2, 5]).state_dict().items() if k not in ("episode", "start_rng")}
     F16Env([2, 5]).load_state_dict(old)        # a checkpoint from before the spread existed
+
+
+# ------------------------------------------------------------ issue 28: potential-based shaping by the LQR's value
+from trl_dgpq.agents.base import learning_reward  # noqa: E402
+from trl_dgpq.envs.f16.presets import FLIGHT_05  # noqa: E402
+
+
+def potential_by_hand(x, dt, steps, elevator_deg, r, gamma):
+    """The noiseless, unquantised LQR flown from x: a decision of ``steps`` simulator steps holds
+    u = -K x (K from scipy's Riccati solver and matrix exponential), each step costing the reward's
+    |h|/100 + |hdot|/100 + |u|/elevator_deg; discounted per decision until gamma^t < 1e-3."""
+    k = lqr_gain_by_hand(dt * steps, r)
+    scipy_linalg = pytest.importorskip("scipy.linalg")
+    a, b = (t.numpy() for t in continuous())
+    m = np.zeros((6, 6))
+    m[:5, :5], m[:5, 5] = a, b
+    e = scipy_linalg.expm(m * dt)
+    ad, bd = e[:5, :5], e[:5, 5]
+    cost, t = 0.0, 0
+    while gamma ** t >= 1e-3:
+        u = -k @ x
+        for _ in range(steps):
+            x = ad @ x + bd * u
+            cost += gamma ** t * (abs(x[0]) / 100 + abs(V_T0 * (x[3] - x[2])) / 100 + abs(u) / elevator_deg)
+        t += 1
+    return -cost
+
+
+@pytest.mark.parametrize("steps, elevator_deg, r, gamma", [(10, 1.0, 0.1, 0.9), (5, 2.0, 0.3, 0.95), (1, 1.0, 0.1, 0.5)])
+def test_the_potential_is_the_noiseless_lqr_flights_discounted_cost(steps, elevator_deg, r, gamma):
+    env = F16Env([0], potential="lqr", decision_steps=steps, elevator_deg=elevator_deg, potential_r=r,
+                 potential_gamma=gamma, **{k: v for k, v in FLIGHT_05.items() if k not in ("decision_steps",)})
+    states = torch.tensor([[20.0, 0.0, 0.01, 0.01, 0.0], [-35.0, 4.0, -0.02, 0.03, 0.05], [0.0] * 5],
+                          dtype=torch.float64)
+    phi = env.potential(states)
+    for x, value in zip(states.numpy(), phi.tolist()):
+        assert value == pytest.approx(potential_by_hand(x, 0.05, steps, elevator_deg, r, gamma), rel=1e-9, abs=1e-12)
+
+
+def test_the_potential_rides_along_and_leaves_the_flight_and_its_reward_alone():
+    """Seeds 0-2 with the potential and seed 1 alone without: the same flight and rewards, bit for bit;
+    each step's "potential" is phi of that step's state, and seed 1's does not depend on its batch."""
+    shaped = F16Env([0, 1, 2], potential="lqr", **FLIGHT_05)
+    plain, alone = F16Env([1], **FLIGHT_05), F16Env([1], potential="lqr", **FLIGHT_05)
+    assert "potential" not in plain.observation_spec.keys()
+    tds = shaped.reset(), plain.reset(), alone.reset()
+    for action in (0, 2, 1, 1, 0):
+        nxt = [env.step(td.set("action", torch.full(env.batch_size, action)))["next"] for env, td in zip(
+            (shaped, plain, alone), tds)]
+        assert torch.equal(nxt[0]["reward"][1], nxt[1]["reward"][0]) and torch.equal(nxt[1]["reward"], nxt[2]["reward"])
+        assert torch.equal(nxt[0]["state"][1], nxt[1]["state"][0])
+        assert torch.equal(nxt[0]["potential"][1], nxt[2]["potential"][0])
+        assert torch.equal(nxt[0]["potential"][:, 0], shaped.potential(nxt[0]["state"]))
+        tds = [n.exclude("reward", "done", "terminated", "truncated") for n in nxt]
+    check_env_specs(shaped)
+
+
+def transition(reward, phi, phi_next, terminated):
+    t = lambda v, dtype=torch.float64: torch.tensor(v, dtype=dtype)[:, None]  # noqa: E731
+    return TensorDict({"potential": t(phi), "next": {"reward": t(reward), "potential": t(phi_next),
+                                                     "terminated": t(terminated, torch.bool)}}, batch_size=[len(reward)])
+
+
+def test_learners_learn_from_r_plus_gamma_phi_next_minus_phi_and_phi_of_an_end_is_zero():
+    td = transition([-1.0, -2.0], [-10.0, -4.0], [-8.0, -3.0], [False, True])
+    # by hand: -1 + 0.9 * -8 + 10 = 1.8; terminal: -2 + 0 + 4 = 2
+    assert learning_reward(td, 0.9)[:, 0].tolist() == pytest.approx([1.8, 2.0], abs=1e-12)
+    plain = td.exclude("potential", ("next", "potential"))
+    assert learning_reward(plain, 0.9) is plain["next", "reward"]
+
+
+@pytest.mark.parametrize("agent", ["dgpq", "dqn"])
+def test_a_learner_given_a_potential_learns_what_it_would_from_the_shaped_reward(agent):
+    """Two learners on the same transitions: one reads the env's reward and the potential, the other
+    the shaped reward r + gamma phi' - phi directly; afterwards their states are equal to the bit."""
+    from tests.test_state import assert_same_state
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    config = resolve_config(env="f16", agent=agent, preset="flight-05-shaped", seeds=[0, 1], episodes=1,
+                            **(dict(learning_starts=4, batch_size=4, train_freq=1) if agent == "dqn" else {}))
+    env, a = build(config)
+    b = build(config)[1]
+    gamma = config["agent"]["gamma"]
+    td = env.reset()
+    for t in range(12):
+        td = td.set("action", torch.tensor([t % 3, (t + 1) % 3]))
+        td = env.step(td)
+        a.observe(td)
+        shaped = td.exclude("potential", ("next", "potential"))
+        shaped["next", "reward"] = td["next", "reward"] + gamma * td["next", "potential"] - td["potential"]
+        b.observe(shaped)
+        td = td["next"].exclude("reward", "done", "terminated", "truncated")
+    state_a, state_b = a.state_dict(), b.state_dict()
+    if agent == "dqn":  # the replay's storage past the rows written is uninitialised memory: compare those rows
+        rows = lambda learner: learner.replay.storage[: learner.replay.written]  # noqa: E731
+        assert_same_state(rows(a), rows(b))
+        assert a.replay.written == 12 and a.updates.tolist() == [8, 8]      # updates from the 5th step
+        state_a["replay"] = state_b["replay"] = None
+    assert_same_state(state_a, state_b)

@@ -27,6 +27,7 @@ from typing import Optional, Sequence, Tuple
 
 import torch
 
+from .agents.base import learning_reward
 from .bounds import box_covering, section5, unit_square_covering
 from .config import check_config, nested, setting
 from .gp import GPConfig, fit, make_gp, make_kernel
@@ -240,7 +241,7 @@ class DGPQ:
     def observe(self, td, active: Optional[torch.Tensor] = None) -> dict:
         nxt = td.get("next")
         return self.learn(self.features(td.get("observation")), td.get("action"),
-                          nxt.get("reward").reshape(self.S), self.features(nxt.get("observation")),
+                          learning_reward(td, self.cfg.gamma).reshape(self.S), self.features(nxt.get("observation")),
                           nxt.get("terminated").reshape(self.S), active)
 
     def qhat_values(self, s: torch.Tensor) -> torch.Tensor:

@@ -26,6 +26,11 @@ from trl_dgpq.config import setting
 from .dynamics import V_T0, climb_rate, discretise, rows_times
 
 
+_RATE = torch.tensor([0.0, 0.0, -V_T0, V_T0, 0.0], dtype=torch.float64) / 100  # ḣ / 100 = _RATE · x
+# the LQR's state cost x'Qx: (h / 100)² + (ḣ / 100)², the quadratic counterpart of the reward's
+LQR_WEIGHTS = torch.diag(torch.tensor([1e-4, 0, 0, 0, 0], dtype=torch.float64)) + torch.outer(_RATE, _RATE)
+
+
 def lqr_gain(a: torch.Tensor, b: torch.Tensor, q: torch.Tensor, r: float, iterations: int = 64) -> torch.Tensor:
     """K of u = −K x minimising Σ x'Qx + r u² for x+ = Ax + bu (float64). The Riccati equation's
     solution P by the structure-preserving doubling algorithm (Chu, Fan, Lin & Wang 2004): each
@@ -77,9 +82,7 @@ class LQRPolicy(ElevatorLaw):
     def make(cls, cfg, info, seeds):
         env = info.config
         a, b = discretise(env.dt * env.decision_steps)  # one decision: the elevator held over it
-        rate = torch.tensor([0.0, 0.0, -V_T0, V_T0, 0.0], dtype=torch.float64) / 100  # ḣ / 100 = rate · x
-        q = torch.diag(torch.tensor([1e-4, 0, 0, 0, 0], dtype=torch.float64)) + torch.outer(rate, rate)
-        return cls(cfg, env.elevator_deg, lqr_gain(a, b, q, cfg.r))
+        return cls(cfg, env.elevator_deg, lqr_gain(a, b, LQR_WEIGHTS, cfg.r))
 
     def command(self, x):
         return -rows_times(x, self.gain[:, None])[:, 0]

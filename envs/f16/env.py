@@ -39,7 +39,10 @@ What GWH14 do not state, chosen here (and why):
   its own units is in each step's TensorDict as ``state``. ``observe_climb`` (issue 28)
   appends ḣ = V_T0 (θ − α) divided by its largest value inside the envelope, 2 V_T0
   ``attitude_max``: a function of the state, so no information is added, but a metric
-  can then weigh the two quantities the reward charges (h − h_d and ḣ) and nothing else.
+  can then weigh the two quantities the reward charges (h − h_d and ḣ) and nothing else;
+- ``potential`` "lqr" (issue 28; ``potential.py``): each step also carries Φ(s), the
+  noiseless value of the unquantised LQR, and the learners shape their own rewards by it
+  (``trl_dgpq.agents.base.learning_reward``). The env's reward is unchanged.
 """
 from __future__ import annotations
 
@@ -53,6 +56,7 @@ from trl_dgpq.rng import stream_id
 
 from ..base import SeedBatchedEnv
 from .dynamics import V_T0, climb_rate, discretise, rows_times
+from .potential import LQRPotential
 
 
 @dataclass
@@ -78,6 +82,16 @@ class F16Config:
     observe_climb: bool = setting(False, "append the climb rate, V_T0 (theta - alpha) / (2 V_T0 attitude_max), "
                                          "to the observation (6 coordinates): a metric can then weigh altitude "
                                          "error and climb rate alone, the two the reward charges")
+    potential: str = setting("none", "lqr: each step's TensorDict carries 'potential', the value of flying the "
+                                     "unquantised LQR from the state without noise, and learners learn from "
+                                     "r + gamma phi(s') - phi(s) (potential-based shaping: the same optimal policies, "
+                                     "a flatter Q - phi for DGPQ's envelope; it uses the model, so it is a variant, "
+                                     "issue 28); the reward and the recorded returns stay GWH14's",
+                             choices=("none", "lqr"))
+    potential_gamma: float = setting(0.9, "discount per decision of the potential's sum (the learner's gamma makes it "
+                                          "closest to V; any value keeps the optimal policies)", within="[0, 1)")
+    potential_r: float = setting(0.1, "the potential's LQR: cost of the elevator, per degree squared",
+                                 within="(0, inf)")
 
     def cross_check(self) -> None:
         if (abs(self.h0) + self.h0_spread >= self.h_max
@@ -107,18 +121,22 @@ class F16Env(SeedBatchedEnv):
         c = self.cfg
         self.scale = torch.tensor([c.h_max, c.vt_scale, c.attitude_max, c.attitude_max, c.rate_max],
                                   dtype=torch.float64, device=self.device)
+        self.potential = LQRPotential(c, self.device) if c.potential == "lqr" else None
 
     @classmethod
     def _specs(cls, cfg, S, device):
         f64 = dict(dtype=torch.float64, device=device)
         observation = Composite(observation=Bounded(-1.0, 1.0, shape=(S, 5 + cfg.observe_climb), **f64),
                                 state=Unbounded(shape=(S, 5), **f64), shape=(S,), device=device)
+        if cfg.potential != "none":
+            observation["potential"] = Unbounded(shape=(S, 1), **f64)
         return observation, Categorical(3, shape=(S,), device=device), Unbounded(shape=(S, 1), **f64)
 
     def _observe(self):
-        """The scaled observation, and the state in its units by key ``state`` (for the
-        scripted controllers)."""
-        return self._td(observation=self.observation(self.state), state=self.state.clone())
+        """The scaled observation, the state in its units by key ``state`` (for the
+        scripted controllers) and, with a potential, its value by key ``potential``."""
+        extra = {} if self.potential is None else dict(potential=self.potential(self.state)[:, None])
+        return self._td(observation=self.observation(self.state), state=self.state.clone(), **extra)
 
     def observation(self, state: torch.Tensor) -> torch.Tensor:
         """The observation of states (N, 5) in the env's units."""

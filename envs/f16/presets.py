@@ -92,18 +92,24 @@ FLIGHT = dict(decision_steps=5, max_steps=40)
 # better); at 251-300, 30 trials, best -117.3 (two of five seeds fly), -132.8 on seeds 1005-1014 -> the
 # preset "flight-05-tuned" (tuned.json); on seeds 0-9 x 300 episodes it holds: -136 at 251-300 (L_Q 10 -139).
 FLIGHT_05 = dict(decision_steps=10, max_steps=20, h_max=10_000.0, attitude_max=1.5, rate_max=10.0)
+# "flight-05-shaped" (issue 28): flight-05 with potential-based shaping by the noiseless unquantised
+# LQR's value at gamma 0.9 (potential.py), the learners' settings unchanged.
+FLIGHT_05_SHAPED = dict(FLIGHT_05, potential="lqr")   # potential_gamma 0.9 (its default), the learners' gamma
+FLIGHT_05_DGPQ = dict(F16_DGPQ, lipschitz=5.0, gamma=0.9, eps1=1.0, lengthscale=8.0,
+                      state_scale=(400.0, 0.0, 240.0, 240.0, 200.0))
 
 PRESETS = {
     "dgpq": {"default": {"agent": dict(F16_DGPQ, lipschitz=5.0)},
              "flight": {"env": FLIGHT, "agent": dict(F16_DGPQ, lipschitz=5.0, gamma=0.95)},
-             "flight-05": {"env": FLIGHT_05, "agent": dict(F16_DGPQ, lipschitz=5.0, gamma=0.9, eps1=1.0, lengthscale=8.0,
-                                                           state_scale=(400.0, 0.0, 240.0, 240.0, 200.0))},
+             "flight-05": {"env": FLIGHT_05, "agent": FLIGHT_05_DGPQ},
+             "flight-05-shaped": {"env": FLIGHT_05_SHAPED, "agent": FLIGHT_05_DGPQ},
              "lq10": {"agent": dict(F16_DGPQ, lipschitz=10.0)},
              "gamma99": {"agent": dict(F16_DGPQ, lipschitz=5.0, gamma=0.99, state_scale=(30.0, 0.0, 60.0, 60.0, 15.0),
                                        lengthscale=6.0)}},
     "dqn": {"default": {"agent": dict(SMALL_DQN, gamma=0.9)},
             "flight": {"env": FLIGHT, "agent": dict(SMALL_DQN, gamma=0.95)},
-            "flight-05": {"env": FLIGHT_05, "agent": dict(SMALL_DQN, gamma=0.9)}},
+            "flight-05": {"env": FLIGHT_05, "agent": dict(SMALL_DQN, gamma=0.9)},
+            "flight-05-shaped": {"env": FLIGHT_05_SHAPED, "agent": dict(SMALL_DQN, gamma=0.9)}},
     "random": {"default": {}, "flight": {"env": FLIGHT}, "flight-05": {"env": FLIGHT_05}},
     "constant": {"default": {"agent": dict(action="hold")},  # doing nothing
                  "flight": {"env": FLIGHT, "agent": dict(action="hold")},

@@ -71,3 +71,16 @@ class ScriptedAgent:
 
     def load_state_dict(self, state: dict) -> None:
         pass
+
+
+def learning_reward(td: TensorDictBase, gamma: float) -> torch.Tensor:
+    """The reward of a transition as a learner should learn from it: the env's, plus
+    γΦ(s') − Φ(s) where the env provides a potential (key ``potential``; Φ of a terminal
+    state is 0). Shaping by a potential (Ng, Harada & Russell 1999) keeps the optimal
+    policies of every γ; the learner passes its own, since the telescoping needs it."""
+    nxt = td.get("next")
+    reward = nxt.get("reward")
+    if "potential" not in td.keys():
+        return reward
+    phi_next = torch.where(nxt.get("terminated"), torch.zeros_like(reward), nxt.get("potential"))
+    return reward + gamma * phi_next - td.get("potential")

@@ -42,6 +42,7 @@ from torch import nn
 from torchrl.data import LazyTensorStorage
 
 from ..rng import LEARNER_STREAM, SeedStreams, stream_id
+from .base import learning_reward
 
 
 def build_per_seed(build: Callable[[], nn.Module], seeds: Sequence[int]) -> List[nn.Module]:
@@ -229,7 +230,7 @@ class SeedBatchedLearner:
         nxt = td.get("next")
         return as_float32(TensorDict({
             "observation": td.get("observation"), "action": td.get("action"),
-            "next": {"observation": nxt.get("observation"), "reward": nxt.get("reward"),
+            "next": {"observation": nxt.get("observation"), "reward": learning_reward(td, self.cfg.gamma),
                      "done": nxt.get("done"), "terminated": nxt.get("terminated")}}, batch_size=td.batch_size))
 
     def learned_tensors(self) -> List[torch.Tensor]:
