@@ -535,6 +535,15 @@ def test_the_potential_is_the_noiseless_lqr_flights_discounted_cost(steps, eleva
         assert value == pytest.approx(potential_by_hand(x, 0.05, steps, elevator_deg, r, gamma), rel=1e-9, abs=1e-12)
 
 
+@pytest.mark.parametrize("steps, gamma", [(10, 0.9), (5, 0.95)])
+def test_the_cost_potential_is_the_states_own_cost_paid_for_ever(steps, gamma):
+    """h 30 ft, theta - alpha 0.002 rad (hdot 1.004 ft/s): (0.3 + 0.01004) per simulator step, `steps` a
+    decision, sum of gamma^t = 1 / (1 - gamma); the airspeed and pitch rate cost nothing."""
+    env = F16Env([0], potential="cost", decision_steps=steps, potential_gamma=gamma)
+    x = torch.tensor([[30.0, 7.0, 0.001, 0.003, 0.2], [-30.0, -7.0, 0.003, 0.001, -0.2]], dtype=torch.float64)
+    assert env.potential(x).tolist() == pytest.approx([-(0.3 + 0.01004) * steps / (1 - gamma)] * 2, rel=1e-12)
+
+
 def test_the_potential_rides_along_and_leaves_the_flight_and_its_reward_alone():
     """Seeds 0-2 with the potential and seed 1 alone without: the same flight and rewards, bit for bit;
     each step's "potential" is phi of that step's state, and seed 1's does not depend on its batch."""

@@ -40,9 +40,10 @@ What GWH14 do not state, chosen here (and why):
   appends ḣ = V_T0 (θ − α) divided by its largest value inside the envelope, 2 V_T0
   ``attitude_max``: a function of the state, so no information is added, but a metric
   can then weigh the two quantities the reward charges (h − h_d and ḣ) and nothing else;
-- ``potential`` "lqr" (issue 28; ``potential.py``): each step also carries Φ(s), the
-  noiseless value of the unquantised LQR, and the learners shape their own rewards by it
-  (``trl_dgpq.agents.base.learning_reward``). The env's reward is unchanged.
+- ``potential`` (issue 28; ``potential.py``): each step also carries Φ(s) — "lqr": the
+  noiseless value of the unquantised LQR; "cost": the state's own cost paid for ever — and
+  the learners shape their own rewards by it (``trl_dgpq.agents.base.learning_reward``).
+  The env's reward is unchanged.
 """
 from __future__ import annotations
 
@@ -56,7 +57,7 @@ from trl_dgpq.rng import stream_id
 
 from ..base import SeedBatchedEnv
 from .dynamics import V_T0, climb_rate, discretise, rows_times
-from .potential import LQRPotential
+from .potential import POTENTIALS
 
 
 @dataclass
@@ -82,12 +83,13 @@ class F16Config:
     observe_climb: bool = setting(False, "append the climb rate, V_T0 (theta - alpha) / (2 V_T0 attitude_max), "
                                          "to the observation (6 coordinates): a metric can then weigh altitude "
                                          "error and climb rate alone, the two the reward charges")
-    potential: str = setting("none", "lqr: each step's TensorDict carries 'potential', the value of flying the "
-                                     "unquantised LQR from the state without noise, and learners learn from "
-                                     "r + gamma phi(s') - phi(s) (potential-based shaping: the same optimal policies, "
-                                     "a flatter Q - phi for DGPQ's envelope; it uses the model, so it is a variant, "
-                                     "issue 28); the reward and the recorded returns stay GWH14's",
-                             choices=("none", "lqr"))
+    potential: str = setting("none", "each step's TensorDict carries 'potential', phi of the state, and learners "
+                                     "learn from r + gamma phi(s') - phi(s) (potential-based shaping: the same optimal "
+                                     "policies, a flatter Q - phi for DGPQ's envelope; issue 28). lqr: the value of "
+                                     "flying the unquantised LQR without noise (uses the model); cost: the state's "
+                                     "own cost, |h - h_d| / 100 + |hdot| / 100 per simulator step, paid for ever (no "
+                                     "model). The reward and the recorded returns stay GWH14's",
+                             choices=("none", "lqr", "cost"))
     potential_gamma: float = setting(0.9, "discount per decision of the potential's sum (the learner's gamma makes it "
                                           "closest to V; any value keeps the optimal policies)", within="[0, 1)")
     potential_r: float = setting(0.1, "the potential's LQR: cost of the elevator, per degree squared",
@@ -121,7 +123,7 @@ class F16Env(SeedBatchedEnv):
         c = self.cfg
         self.scale = torch.tensor([c.h_max, c.vt_scale, c.attitude_max, c.attitude_max, c.rate_max],
                                   dtype=torch.float64, device=self.device)
-        self.potential = LQRPotential(c, self.device) if c.potential == "lqr" else None
+        self.potential = POTENTIALS[c.potential](c, self.device) if c.potential != "none" else None
 
     @classmethod
     def _specs(cls, cfg, S, device):

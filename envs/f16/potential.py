@@ -1,5 +1,6 @@
-"""A potential for reward shaping on the F-16 (issue 28): Φ(x), the value of flying the
-unquantised LQR from x without noise.
+"""Potentials for reward shaping on the F-16 (issue 28): ``lqr``, Φ(x) the value of flying the
+unquantised LQR from x without noise; ``cost``, Φ(x) the cost the reward charges for the state
+x, as if it were paid for ever (no model).
 
 Shaping by a potential (Ng, Harada & Russell 1999) — learning from r + γΦ(s') − Φ(s) instead
 of r — leaves every policy's ranking unchanged, for any Φ and the learner's own γ, but what
@@ -22,7 +23,7 @@ import math
 import torch
 
 from .baselines import LQR_WEIGHTS, lqr_gain
-from .dynamics import V_T0, discretise, rows_times
+from .dynamics import V_T0, climb_rate, discretise, rows_times
 
 
 def lqr_rows(dt: float, decision_steps: int, elevator_deg: float, r: float, gamma: float,
@@ -53,3 +54,17 @@ class LQRPotential:
 
     def __call__(self, state: torch.Tensor) -> torch.Tensor:
         return -(rows_times(state, self.rows_t).abs() * self.weights).sum(-1)
+
+
+class CostPotential:
+    """Φ(x) = −(|h − h_d| / 100 + |ḣ| / 100) · decision_steps / (1 − γ): the state's own cost per
+    simulator step (the reward's terms without the elevator's), paid at every step for ever."""
+
+    def __init__(self, cfg, device="cpu"):
+        self.factor = cfg.decision_steps / (1.0 - cfg.potential_gamma)
+
+    def __call__(self, state: torch.Tensor) -> torch.Tensor:
+        return -(state[:, 0].abs() / 100 + climb_rate(state).abs() / 100) * self.factor
+
+
+POTENTIALS = {"lqr": LQRPotential, "cost": CostPotential}

@@ -95,6 +95,8 @@ FLIGHT_05 = dict(decision_steps=10, max_steps=20, h_max=10_000.0, attitude_max=1
 # "flight-05-shaped" (issue 28): flight-05 with potential-based shaping by the noiseless unquantised
 # LQR's value at gamma 0.9 (potential.py), the learners' settings unchanged.
 FLIGHT_05_SHAPED = dict(FLIGHT_05, potential="lqr")   # potential_gamma 0.9 (its default), the learners' gamma
+# "flight-05-cost-shaped": the same with a potential that needs no model, the state's own cost paid for ever.
+FLIGHT_05_COST_SHAPED = dict(FLIGHT_05, potential="cost")
 FLIGHT_05_DGPQ = dict(F16_DGPQ, lipschitz=5.0, gamma=0.9, eps1=1.0, lengthscale=8.0,
                       state_scale=(400.0, 0.0, 240.0, 240.0, 200.0))
 
@@ -103,13 +105,15 @@ PRESETS = {
              "flight": {"env": FLIGHT, "agent": dict(F16_DGPQ, lipschitz=5.0, gamma=0.95)},
              "flight-05": {"env": FLIGHT_05, "agent": FLIGHT_05_DGPQ},
              "flight-05-shaped": {"env": FLIGHT_05_SHAPED, "agent": FLIGHT_05_DGPQ},
+             "flight-05-cost-shaped": {"env": FLIGHT_05_COST_SHAPED, "agent": FLIGHT_05_DGPQ},
              "lq10": {"agent": dict(F16_DGPQ, lipschitz=10.0)},
              "gamma99": {"agent": dict(F16_DGPQ, lipschitz=5.0, gamma=0.99, state_scale=(30.0, 0.0, 60.0, 60.0, 15.0),
                                        lengthscale=6.0)}},
     "dqn": {"default": {"agent": dict(SMALL_DQN, gamma=0.9)},
             "flight": {"env": FLIGHT, "agent": dict(SMALL_DQN, gamma=0.95)},
             "flight-05": {"env": FLIGHT_05, "agent": dict(SMALL_DQN, gamma=0.9)},
-            "flight-05-shaped": {"env": FLIGHT_05_SHAPED, "agent": dict(SMALL_DQN, gamma=0.9)}},
+            "flight-05-shaped": {"env": FLIGHT_05_SHAPED, "agent": dict(SMALL_DQN, gamma=0.9)},
+            "flight-05-cost-shaped": {"env": FLIGHT_05_COST_SHAPED, "agent": dict(SMALL_DQN, gamma=0.9)}},
     "random": {"default": {}, "flight": {"env": FLIGHT}, "flight-05": {"env": FLIGHT_05}},
     "constant": {"default": {"agent": dict(action="hold")},  # doing nothing
                  "flight": {"env": FLIGHT, "agent": dict(action="hold")},
