@@ -128,7 +128,7 @@ def test_help_is_grouped_by_owner_and_presets_can_be_listed(capsys):
     f16 = next(line.split() for line in lines if line.split()[:2] == ["f16", "dgpq"])
     assert f16[2:4] == ["default", "(default),"] and {"flight,", "gamma99,"} <= set(f16)  # the domain's own
     tuned = presets.tuned_entries("f16").get("dgpq", {})                              # and what studies wrote
-    assert {n.rstrip(",") for n in f16[4:]} == {"flight", "flight-05", "flight-05-cost-shaped", "flight-05-shaped", "gamma99", "lq10", *tuned}
+    assert {n.rstrip(",") for n in f16[4:]} == {"flight", "flight-05", "flight-05-cost-shaped", "flight-05-shaped", "gamma99", "gamma99-shaped", "lq10", *tuned}
 
 
 # ------------------------------------------------------------ --help and typos before the heavy imports
