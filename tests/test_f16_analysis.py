@@ -408,6 +408,18 @@ def test_optimism_compares_qhat_with_the_lower_bound_per_seed(tmp_path, monkeypa
         assert list(df.attrs["slopes"].index) == ["up", "hold", "down"]
 
 
+def test_optimism_of_a_shaped_run_compares_qhat_with_q_minus_the_potential(tmp_path, monkeypatch):
+    """The "cost" potential at the start (h 20 ft, hdot 0): -0.2 per step x 10 steps / (1 - 0.9) = -20, so a
+    lower bound of -30 on Q is one of -10 on Q - phi: the shaped run's Q̂ is compared with that."""
+    from trl_dgpq.commands import train
+    out = tmp_path / "run"
+    assert train.main(["--env", "f16", "--agent", "dgpq", "--preset", "flight-05-cost-shaped", "--seeds", "2",
+                       "--episodes", "1", "--max-steps", "2", "--out", str(out), "--no-progress"]) == 0
+    monkeypatch.setattr(analysis, "lqr_q", lambda cfg, s, gamma, rollouts: torch.full((len(s), 3), -30.0))
+    df = analysis.optimism(out, "hold", episodes=1, rollouts=1)
+    assert df.q_start.tolist() == [[-10.0] * 3] * len(df) and len(df) == 2   # --seeds 2: seeds 0 and 1
+
+
 def test_optimism_refuses_a_run_without_qhat(tmp_path):
     from trl_dgpq.commands import train
     out = tmp_path / "run"

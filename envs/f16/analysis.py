@@ -285,7 +285,7 @@ def lqr_q(cfg, states, gamma: float, rollouts: int = 100, r: float = 0.1, seed: 
     horizon = max(1, math.ceil(math.log(tol) / math.log(gamma))) if gamma > 0 else 1
     n, m = len(states), rollouts
     seeds = list(range(seed, seed + n * m))      # the same streams for each setting: common noise
-    long = replace(cfg, max_steps=horizon)       # the leaving penalty counts the steps left
+    long = replace(cfg, max_steps=horizon, potential="none")   # the leaving penalty counts the steps left
     q = torch.zeros(n, 3, dtype=torch.float64)
     for a in range(3):
         env = F16Env(seeds, long)
@@ -307,6 +307,8 @@ def lqr_q(cfg, states, gamma: float, rollouts: int = 100, r: float = 0.1, seed: 
 def visited(cfg, policy: str, episodes: int, seed: int = 0):
     """The states (episodes * max_steps, 5) that ``policy`` ("hold" or "lqr") flies through
     from the env's start, one episode per seed row (each seed's own noise)."""
+    from dataclasses import replace
+
     import torch
     from tensordict import TensorDict
 
@@ -314,7 +316,7 @@ def visited(cfg, policy: str, episodes: int, seed: int = 0):
     from .env import F16Env
 
     seeds = list(range(seed, seed + episodes))
-    env = F16Env(seeds, cfg)
+    env = F16Env(seeds, replace(cfg, potential="none"))
     td = env.reset()
     lqr = LQRPolicy.make(LQRConfig(r=0.1), env.info, seeds)
     out = []
@@ -331,7 +333,8 @@ def optimism(folder: Path, on: str = "hold", episodes: int = 8, rollouts: int = 
     below Q of a-then-LQR less ε₁ (optimism lost), the median shortfall there, Q̂'s greedy
     action against the LQR-continuation's best (counts of nose-up, hold, nose-down; ``pulse_gap``:
     the median margin by which a pulse is best where it is), and Q̂
-    and Q at the start state; ``attrs["slopes"]``: ``slopes`` at those states."""
+    and Q at the start state; ``attrs["slopes"]``: ``slopes`` at those states. In a run shaped by
+    a potential Φ, Q is Q − Φ throughout (what its Q̂ bounds)."""
     import torch
 
     from trl_dgpq.collectors.evaluate import jobs, restore
@@ -340,6 +343,8 @@ def optimism(folder: Path, on: str = "hold", episodes: int = 8, rollouts: int = 
         raise ValueError(f"{folder} is not a DGPQ run (its agent has no Q̂)")
     states = visited(env.cfg, on, episodes, seed=9000)
     q = lqr_q(env.cfg, states, agent.cfg.gamma, rollouts)
+    if env.potential is not None:   # a shaped run's Q̂ is an envelope of Q − Φ (shaping telescopes)
+        q = q - env.potential(states)[:, None]
     f = agent.features(env.observation(states))
     qhat = torch.stack([agent.qhat(x[None].expand(agent.S, -1)) for x in f])    # (N, S, A)
     top = q.sort(1, descending=True).values
