@@ -87,3 +87,20 @@ def test_the_f16s_claims_need_gwh14s_window():
     assert got.verdict == "reproduced" and got.ours == "-99 in episodes 2901-3000, holding -136"
     worse = run(episodes([-300.0] * 3000, "return", seeds=1), env="f16")
     assert claims({"f16-05-dgpq-lq5": worse, "f16-05-nothing": hold})[0].verdict == "not reproduced"
+
+
+def test_the_shaped_f16_claim_is_issue_28s_goal():
+    """PD -73, holding -135: halfway is -104 and within 10 % of PD is -80.3. -104 at 91-100 and -80 at
+    191-200 meet it; -105 at 91-100, or -81 at 191-200, does not; 150 episodes cannot say."""
+    from trl_dgpq.envs.f16.analysis import claims
+    refs = {"f16-05-pd": run(episodes([-73.0] * 100, "return", seeds=1), env="f16"),
+            "f16-05-nothing": run(episodes([-135.0] * 100, "return", seeds=1), env="f16")}
+
+    def verdict(at_100, at_200, n=200):
+        curve = [-400.0] * 90 + [at_100] * 10 + [-300.0] * 90 + [at_200] * 10
+        got = [c for c in claims({"f16-shaped-dgpq-lq5": run(episodes(curve[:n], "return"), env="f16"), **refs})
+               if "flight-05-shaped" in c.claim]
+        return got[0].verdict, got[0].ours
+    assert verdict(-104.0, -80.0) == ("reproduced", "-104 in episodes 91-100, -80 in 191-200; PD -73, holding -135")
+    assert verdict(-105.0, -80.0)[0] == verdict(-104.0, -81.0)[0] == "not reproduced"
+    assert verdict(-104.0, -80.0, n=150)[0] == "not measured"

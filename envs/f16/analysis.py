@@ -178,6 +178,13 @@ REPRODUCE += [
     ("f16-05-pd", dict(agent="pd", preset="flight-05"), FLIGHT_SCRIPTED),
     ("f16-05-nothing", dict(agent="constant", preset="flight-05"), FLIGHT_SCRIPTED),
 ]
+# flight-05 shaped by the LQR's potential (issue 28), where DGPQ flies: GWH14's 1,000 episodes.
+SHAPED_SCALES = {"smoke": (1, 3), "quick": (2, 50), "full": (10, 1000), "report": (10, 1000)}
+REPRODUCE += [
+    ("f16-shaped-dgpq-lq5", dict(agent="dgpq", preset="flight-05-shaped"), SHAPED_SCALES),
+    ("f16-shaped-dgpq-lq10", dict(agent="dgpq", preset="flight-05-shaped", lipschitz=10.0), SHAPED_SCALES),
+    ("f16-shaped-dqn", dict(agent="dqn", preset="flight-05-shaped"), SHAPED_SCALES),
+]
 
 
 def late_window(E: int) -> tuple:
@@ -203,16 +210,23 @@ TABLE_HEAD = ["| agent | seeds x episodes | reward, episodes 1-10 | 100-200 | la
               "reached (episode) | ms per seed-step |", "|---|---|---|---|---|---|---|"]
 
 
-def flight_05_part(runs: dict, out: Path, title: str) -> str:
-    """The flight-05 runs' table and figure: "late" is each run's last 100 episodes."""
-    (out / "f16-05").mkdir(exist_ok=True)
+PARTS = {  # name prefix: (folder, heading, the figure's block and preset)
+    "f16-05-": ("f16-05", "A decision every 0.5 s (`flight-05`, issue 28)", 50, "flight-05"),
+    "f16-shaped-": ("f16-shaped", "Shaped by the LQR's potential (`flight-05-shaped`, issue 28)", 10, "flight-05-shaped"),
+}
+
+
+def part(prefix: str, runs: dict, out: Path, title: str) -> str:
+    """A variant's runs' table and figure: "late" is each run's last 100 episodes."""
+    folder, heading, block, preset = PARTS[prefix]
+    (out / folder).mkdir(exist_ok=True)
     names = list(runs)
-    reward_figure([runs[n] for n in names], [n.removeprefix("f16-05-") for n in names], out / "f16-05",
-                  block=50, title=f"flight-05, {title}")
+    reward_figure([runs[n] for n in names], [n.removeprefix(prefix) for n in names], out / folder,
+                  block=block, title=f"{preset}, {title}")
     rows = [row(n, runs[n].df, late=(max(1, runs[n].df.episode.max() - 99), runs[n].df.episode.max()))
             for n in names]
-    return ("### A decision every 0.5 s (`flight-05`, issue 28)\n\n" + "\n".join(TABLE_HEAD + rows)
-            + "\n\n![reward, flight-05](f16-05/f16_reward.png)\n")
+    return (f"### {heading}\n\n" + "\n".join(TABLE_HEAD + rows)
+            + f"\n\n![reward, {folder}]({folder}/f16_reward.png)\n")
 
 
 def claims(runs: dict) -> list:
@@ -243,23 +257,38 @@ def claims(runs: dict) -> list:
                          "nothing by episodes 2,901-3,000 (about -99; holding -136)",
                          f"{ours:.0f} in episodes {max(1, E - 99)}-{E}, holding {holding:.0f}",
                          "not measured" if E < 3000 else "reproduced" if ours > holding else "not reproduced"))
+    if "f16-shaped-dgpq-lq5" in runs and "f16-05-nothing" in runs and "f16-05-pd" in runs:
+        df = runs["f16-shaped-dgpq-lq5"].df
+        pd_reward = window_reward(runs["f16-05-pd"].df, 1, int(runs["f16-05-pd"].df.episode.max()))
+        holding = window_reward(runs["f16-05-nothing"].df, 1, int(runs["f16-05-nothing"].df.episode.max()))
+        claim = ("shaped by the LQR's potential (`flight-05-shaped`), DGPQ at L_Q 5 is past halfway from doing "
+                 "nothing to PD by episodes 91-100 and within 10 % of PD by 191-200 (issue 28's goal; seeds' median)")
+        if df.episode.max() < 200:
+            out.append(Claim("this suite (issue 28)", claim, f"episodes 191-200 not reached in {df.episode.max()}",
+                             "not measured"))
+        else:
+            early, late = (float(df[df.episode.between(lo, lo + 9)].groupby("seed")["return"].mean().median())
+                           for lo in (91, 191))
+            met = early >= (holding + pd_reward) / 2 and late >= 1.1 * pd_reward
+            out.append(Claim("this suite (issue 28)", claim, f"{early:.0f} in episodes 91-100, {late:.0f} in 191-200; "
+                             f"PD {pd_reward:.0f}, holding {holding:.0f}", "reproduced" if met else "not reproduced"))
     return out
 
 
 def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
     """REPORT.md's F-16 section; ``runs``: {name in REPRODUCE: Run}."""
     (out / "f16").mkdir(exist_ok=True)
-    flight = {n: r for n, r in runs.items() if n.startswith("f16-05-")}
-    runs = {n: r for n, r in runs.items() if n not in flight}
-    names = list(runs)
-    figures([runs[n] for n in names], [n.removeprefix("f16-") for n in names], out / "f16",
+    variants = {p: {n: r for n, r in runs.items() if n.startswith(p)} for p in PARTS}
+    gwh14 = {n: r for n, r in runs.items() if not any(n.startswith(p) for p in PARTS)}
+    names = list(gwh14)
+    figures([gwh14[n] for n in names], [n.removeprefix("f16-") for n in names], out / "f16",
             block=10, title=title)
-    rows = TABLE_HEAD + [row(n, runs[n].df) for n in names]
-    sentences = [c.bullet() for c in claims({**runs, **flight})]
+    rows = TABLE_HEAD + [row(n, gwh14[n].df) for n in names]
+    sentences = [c.bullet() for c in claims(runs)]
     return (f"## Aircraft altitude hold (GWH14's second experiment) -- Figure 3\n\n{label}\n\n"
             + "\n".join(rows) + "\n\n" + "\n".join(sentences)
             + "\n\n![reward](f16/f16_reward.png) ![trace](f16/f16_trace.png)\n"
-            + ("\n" + flight_05_part(flight, out, title) if flight else ""))
+            + "".join("\n" + part(p, v, out, title) for p, v in variants.items() if v))
 
 
 # ------------------------------------------------------------ is Q̂ still optimistic? (issue 28)
