@@ -93,7 +93,11 @@ FLIGHT = dict(decision_steps=5, max_steps=40)
 # preset "flight-05-tuned" (tuned.json); on seeds 0-9 x 300 episodes it holds: -136 at 251-300 (L_Q 10 -139).
 FLIGHT_05 = dict(decision_steps=10, max_steps=20, h_max=10_000.0, attitude_max=1.5, rate_max=10.0)
 # "flight-05-shaped" (issue 28): flight-05 with potential-based shaping by the noiseless unquantised
-# LQR's value at gamma 0.9 (potential.py), the learners' settings unchanged.
+# LQR's value at gamma 0.9 (potential.py), the learners' settings unchanged. Seeds 2000-2003 x 200
+# episodes: -226 (1-10), -91 (11-20), -73 (31-40), -70 (191-200), Q̂ 309-360 pairs. Seeds 0-9 x 1,000
+# (configs/f16-shaped.toml; docs/domains/f16.md): L_Q 5 -237, -68 at 91-100 and 191-200, -67 at
+# 901-1,000; L_Q 10 -426, -73, -72, -68; DQN (small, gamma 0.9) shaped alike -817, -221, -165, -81.
+# "flight-05-cost-shaped", seeds 0-9: L_Q 5 -404, -124 at 91-100, -108 at 191-200, -99 at 901-1,000.
 FLIGHT_05_SHAPED = dict(FLIGHT_05, potential="lqr")   # potential_gamma 0.9 (its default), the learners' gamma
 # "flight-05-cost-shaped": the same with a potential that needs no model, the state's own cost paid for ever.
 FLIGHT_05_COST_SHAPED = dict(FLIGHT_05, potential="cost")
