@@ -524,7 +524,8 @@ def potential_by_hand(x, dt, steps, elevator_deg, r, gamma):
     return -cost
 
 
-@pytest.mark.parametrize("steps, elevator_deg, r, gamma", [(10, 1.0, 0.1, 0.9), (5, 2.0, 0.3, 0.95), (1, 1.0, 0.1, 0.5)])
+@pytest.mark.parametrize("steps, elevator_deg, r, gamma", [(10, 1.0, 0.1, 0.9), (5, 2.0, 0.3, 0.95), (1, 1.0, 0.1, 0.5),
+                                                         (10, 1.0, 0.1, 0.0), (10, 1.0, 0.1, 1e-4)])   # one decision
 def test_the_potential_is_the_noiseless_lqr_flights_discounted_cost(steps, elevator_deg, r, gamma):
     env = F16Env([0], potential="lqr", decision_steps=steps, elevator_deg=elevator_deg, potential_r=r,
                  potential_gamma=gamma, **{k: v for k, v in FLIGHT_05.items() if k not in ("decision_steps",)})
