@@ -90,17 +90,27 @@ def test_the_f16s_claims_need_gwh14s_window():
 
 
 def test_the_shaped_f16_claim_is_issue_28s_goal():
-    """PD -73, holding -135: halfway is -104 and within 10 % of PD is -80.3. -104 at 91-100 and -80 at
-    191-200 meet it; -105 at 91-100, or -81 at 191-200, does not; 150 episodes cannot say."""
+    """PD -73 and holding -135 over all their episodes (the first differs): halfway is -104 and within
+    10 % of PD is -80.3. -104 at 91-100 and -80.2 at 191-200 (its first episode -100, the rest -78) meet
+    it; -105 at 91-100, or -81 at 191-200, does not; 150 episodes cannot say; without PD or holding
+    there is no claim."""
     from trl_dgpq.envs.f16.analysis import claims
-    refs = {"f16-05-pd": run(episodes([-73.0] * 100, "return", seeds=1), env="f16"),
-            "f16-05-nothing": run(episodes([-135.0] * 100, "return", seeds=1), env="f16")}
+    refs = {"f16-05-pd": run(episodes([-1.0] + [-73.0 - 72.0 / 99] * 99, "return", seeds=1), env="f16"),
+            "f16-05-nothing": run(episodes([-36.0] + [-136.0] * 99, "return", seeds=1), env="f16")}
 
-    def verdict(at_100, at_200, n=200):
-        curve = [-400.0] * 90 + [at_100] * 10 + [-300.0] * 90 + [at_200] * 10
-        got = [c for c in claims({"f16-shaped-dgpq-lq5": run(episodes(curve[:n], "return"), env="f16"), **refs})
-               if "flight-05-shaped" in c.claim]
-        return got[0].verdict, got[0].ours
-    assert verdict(-104.0, -80.0) == ("reproduced", "-104 in episodes 91-100, -80 in 191-200; PD -73, holding -135")
-    assert verdict(-105.0, -80.0)[0] == verdict(-104.0, -81.0)[0] == "not reproduced"
-    assert verdict(-104.0, -80.0, n=150)[0] == "not measured"
+    def shaped(at_100, at_200, n=200, **references):
+        at_200 = at_200 if isinstance(at_200, list) else [at_200] * 10
+        curve = [-400.0] * 90 + [at_100] * 10 + [-300.0] * 90 + at_200 + [-300.0] * 10
+        return [c for c in claims({"f16-shaped-dgpq-lq5": run(episodes(curve[:n], "return"), env="f16"),
+                                   **(references or refs)}) if "flight-05-shaped" in c.claim]
+    got = shaped(-104.0, [-100.0] + [-78.0] * 9)
+    assert [(c.source, c.claim, c.ours, c.verdict) for c in got] == [(
+        "this suite (issue 28)", "shaped by the LQR's potential (`flight-05-shaped`), DGPQ at L_Q 5 is past halfway "
+        "from doing nothing to PD by episodes 91-100 and within 10 % of PD by 191-200 (issue 28's goal; seeds' median)",
+        "-104 in episodes 91-100, -80 in 191-200; PD -73, holding -135", "reproduced")]
+    assert shaped(-105.0, -80.0)[0].verdict == shaped(-104.0, -81.0)[0].verdict == "not reproduced"
+    short = shaped(-104.0, -80.0, n=150)[0]
+    assert (short.source, short.ours, short.verdict) == ("this suite (issue 28)", "episodes 191-200 not reached in 150",
+                                                         "not measured")
+    for only in refs:
+        assert shaped(-104.0, -80.0, **{only: refs[only]}) == []
