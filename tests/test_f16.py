@@ -275,15 +275,21 @@ from trl_dgpq.envs.f16.baselines import LQRConfig, LQRPolicy, PDConfig, PDPolicy
 from trl_dgpq.envs.f16.dynamics import B  # noqa: E402
 
 
-def lqr_gain_by_hand(dt, r=0.3):
-    """K of the LQR for x'Qx (Q: (h/100)^2 + (hdot/100)^2) + r u^2, from scipy's Riccati solver
-    on the model discretised by scipy's matrix exponential (a decision of ``dt`` seconds)."""
+def discretised_by_scipy(dt):
+    """(A_d, B_d) of the 5-D model for an elevator held ``dt`` seconds, by scipy's matrix exponential."""
     scipy_linalg = pytest.importorskip("scipy.linalg")
     a, b = (t.numpy() for t in continuous())
     m = np.zeros((6, 6))
     m[:5, :5], m[:5, 5] = a, b
     e = scipy_linalg.expm(m * dt)
-    ad, bd = e[:5, :5], e[:5, 5]
+    return e[:5, :5], e[:5, 5]
+
+
+def lqr_gain_by_hand(dt, r=0.3):
+    """K of the LQR for x'Qx (Q: (h/100)^2 + (hdot/100)^2) + r u^2, from scipy's Riccati solver
+    on the model discretised by scipy's matrix exponential (a decision of ``dt`` seconds)."""
+    scipy_linalg = pytest.importorskip("scipy.linalg")
+    ad, bd = discretised_by_scipy(dt)
     rate = np.array([0.0, 0.0, -V_T0, V_T0, 0.0]) / 100
     q = np.diag([1e-4, 0, 0, 0, 0]) + np.outer(rate, rate)
     p = scipy_linalg.solve_discrete_are(ad, bd[:, None], q, np.array([[r]]))
@@ -508,12 +514,7 @@ def potential_by_hand(x, dt, steps, elevator_deg, r, gamma):
     u = -K x (K from scipy's Riccati solver and matrix exponential), each step costing the reward's
     |h|/100 + |hdot|/100 + |u|/elevator_deg; discounted per decision until gamma^t < 1e-3."""
     k = lqr_gain_by_hand(dt * steps, r)
-    scipy_linalg = pytest.importorskip("scipy.linalg")
-    a, b = (t.numpy() for t in continuous())
-    m = np.zeros((6, 6))
-    m[:5, :5], m[:5, 5] = a, b
-    e = scipy_linalg.expm(m * dt)
-    ad, bd = e[:5, :5], e[:5, 5]
+    ad, bd = discretised_by_scipy(dt)
     cost, t = 0.0, 0
     while gamma ** t >= 1e-3:
         u = -k @ x
