@@ -302,7 +302,6 @@ def lqr_q(cfg, states, gamma: float, rollouts: int = 100, r: float = 0.1, seed: 
     the quantised LQR (weight ``r``): the mean discounted reward of ``rollouts`` flights through
     the env itself (its dynamics, noise and reward; the same noise for the three settings),
     until γ^t < ``tol``. A flight that leaves the envelope earns nothing after its penalty."""
-    import math
     from dataclasses import replace
 
     import torch
@@ -310,8 +309,9 @@ def lqr_q(cfg, states, gamma: float, rollouts: int = 100, r: float = 0.1, seed: 
 
     from .baselines import LQRConfig, LQRPolicy
     from .env import F16Env
+    from .potential import horizon as decisions_until
 
-    horizon = max(1, math.ceil(math.log(tol) / math.log(gamma))) if gamma > 0 else 1
+    horizon = decisions_until(gamma, tol)
     n, m = len(states), rollouts
     seeds = list(range(seed, seed + n * m))      # the same streams for each setting: common noise
     long = replace(cfg, max_steps=horizon, potential="none")   # the leaving penalty counts the steps left

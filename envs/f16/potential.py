@@ -8,9 +8,9 @@ a learner must represent becomes Q − Φ. For DGPQ that is what matters: its en
 L_Q at least Q's slope in the state metric, and on the F-16 that slope (~40 per unit where
 the aircraft flies, from the state's value) is far above the differences between the
 elevator's settings (~1.4-3.7) that flying rests on. With Φ close to V, Q − Φ is about the
-advantage, whose slope is small. Φ uses the model (the LQR of the linearised dynamics):
-knowledge GWH14's model-free agent does not have, so it is a documented variant, off by
-default.
+advantage, whose slope is small. ``lqr`` uses the model (the LQR of the linearised
+dynamics), knowledge GWH14's model-free agent does not have; ``cost`` uses only the reward's
+own terms. Both are documented variants, off by default.
 
 The closed loop is linear, so along the noiseless trajectory every cost term of every
 simulator step is |g · x₀| for a fixed row g: Φ(x) = −Σ w |G x| with the rows G and the
@@ -26,6 +26,11 @@ from .baselines import LQR_WEIGHTS, lqr_gain
 from .dynamics import V_T0, climb_rate, discretise, rows_times
 
 
+def horizon(gamma: float, tail: float = 1e-3) -> int:
+    """Decisions t = 0, 1, ... while γᵗ ≥ ``tail`` (1 at γ = 0)."""
+    return 1 if gamma == 0 else max(1, math.ceil(math.log(tail) / math.log(gamma)))
+
+
 def lqr_rows(dt: float, decision_steps: int, elevator_deg: float, r: float, gamma: float,
              tail: float = 1e-3) -> tuple:
     """(G, w): rows (N, 5) and weights (N,) with Φ(x) = −Σ_n w_n |G_n · x|, over decisions
@@ -34,7 +39,7 @@ def lqr_rows(dt: float, decision_steps: int, elevator_deg: float, r: float, gamm
     |h|/100 + |ḣ|/100 + |u|/elevator_deg as the env's reward does."""
     ad, bd = discretise(dt)
     gain = lqr_gain(*discretise(dt * decision_steps), LQR_WEIGHTS, r)
-    decisions = 1 if gamma == 0 else max(1, math.ceil(math.log(tail) / math.log(gamma)))
+    decisions = horizon(gamma, tail)
     m, rows, weights = torch.eye(5, dtype=torch.float64), [], []
     for t in range(decisions):
         u = -gain @ m                                     # the decision's command, as a row on x₀
