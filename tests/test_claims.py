@@ -73,20 +73,49 @@ def test_liquidations_claims_from_costs_paired_with_the_optimum():
 
 
 def test_the_f16s_claims_need_gwh14s_window():
+    """GWH14's Figure 3 in its own windows: L_Q 5 by episodes 100-200 (-47), L_Q 10 by 900-1,000 (-113),
+    within 1.5x; a run that has not reached the window's end measures nothing."""
     from trl_dgpq.envs.f16.analysis import claims
-    lq5 = run(episodes([-500.0] * 10 + [-60.0] * 190, "return"), env="f16")      # 100-200: -60 (GWH14 -47)
-    got = claims({"f16-dgpq-lq5": lq5})[0]
-    assert got.verdict == "reproduced" and "-60 in 100-200" in got.ours
+    first = [-590.0] + [-490.0] * 9                                   # -500 over episodes 1-10, not over 2-10
+    stable, flying = first + [-40.0] * 190, first + [-80.0] * 190     # -40 >= -41: seed 0 is stable
+    lq5 = run([dict(seed=s, episode=e + 1, **{"return": v}) for s, curve in enumerate((stable, flying))
+               for e, v in enumerate(curve)], env="f16")                          # 100-200: -60 (GWH14 -47)
+    five = ("GWH14", "DGPQ at L_Q 5: reward about -525 at first, -47 by episodes 100-200, stable within 100 episodes")
+    assert [(c.source, c.claim, c.ours, c.verdict) for c in claims({"f16-dgpq-lq5": lq5})] == [
+        (*five, "-500 in episodes 1-10, -60 in 100-200, 1 of 2 seeds stable (agreeing if within 1.5x)", "reproduced")]
     far = run(episodes([-500.0] * 10 + [-80.0] * 190, "return"), env="f16")     # -80 > 1.5 x -47
     assert claims({"f16-dgpq-lq5": far})[0].verdict == "not reproduced"
-    short = run(episodes([-60.0] * 150, "return"), env="f16")
-    assert claims({"f16-dgpq-lq5": short})[0].verdict == "not measured"
-    flight = run(episodes([-300.0] * 2900 + [-99.0] * 100, "return", seeds=1), env="f16")
-    hold = run(episodes([-136.0] * 100, "return", seeds=1), env="f16")
-    got = claims({"f16-05-dgpq-lq5": flight, "f16-05-nothing": hold})[0]
-    assert got.verdict == "reproduced" and got.ours == "-99 in episodes 2901-3000, holding -136"
-    worse = run(episodes([-300.0] * 3000, "return", seeds=1), env="f16")
-    assert claims({"f16-05-dgpq-lq5": worse, "f16-05-nothing": hold})[0].verdict == "not reproduced"
+    short = claims({"f16-dgpq-lq5": run(episodes([-60.0] * 199, "return"), env="f16")})
+    assert [(c.source, c.claim, c.ours, c.verdict) for c in short] == [
+        (*five, "episodes 100-200 not reached in this run's 199", "not measured")]
+    # L_Q 10 alone (no L_Q 5 run): its window starts at episode 900 (-1,000 there) and ends at 1,000
+    lq10 = run(episodes([-500.0] * 899 + [-1000.0] + [-100.0] * 100, "return"), env="f16")
+    ten = ("GWH14", "DGPQ at L_Q 10: reward about -514 at first, -113 by episodes 900-1000, stable by about 1,000 "
+           "episodes")
+    assert [(c.source, c.claim, c.ours, c.verdict) for c in claims({"f16-dgpq-lq10": lq10})] == [
+        (*ten, "-500 in episodes 1-10, -109 in 900-1000, 0 of 2 seeds stable (agreeing if within 1.5x)", "reproduced")]
+    assert claims({"f16-dgpq-lq10": run(episodes([-100.0] * 999, "return"), env="f16")})[0].verdict == "not measured"
+    both = claims({"f16-dgpq-lq5": run(episodes([-60.0] * 199, "return"), env="f16"), "f16-dgpq-lq10": lq10})
+    assert [c.verdict for c in both] == ["not measured", "reproduced"]              # one short run hides no other
+
+
+def test_the_f16_claim_at_half_a_second_is_about_the_last_100_episodes():
+    """DGPQ on `flight-05` against holding over all its episodes (the first differs): -135 each, so a tie,
+    which is not beating it; 2,999 episodes cannot say; a short run's window starts at episode 1."""
+    from trl_dgpq.envs.f16.analysis import claims
+    hold = run(episodes([-36.0] + [-136.0] * 99, "return", seeds=1), env="f16")   # -135 over its 100
+    claim = ("this suite (issue 28)", "deciding every 0.5 s (`flight-05`), DGPQ at L_Q 5 beats doing nothing by "
+             "episodes 2,901-3,000 (about -99; holding -136)")
+
+    def got(curve):
+        out = claims({"f16-05-dgpq-lq5": run(episodes(curve, "return", seeds=1), env="f16"), "f16-05-nothing": hold})
+        return [(c.source, c.claim, c.ours, c.verdict) for c in out]
+    assert got([-300.0] * 2900 + [-99.0] * 100) == [(*claim, "-99 in episodes 2901-3000, holding -135", "reproduced")]
+    assert got([-300.0] * 2900 + [-135.0] * 100) == [(*claim, "-135 in episodes 2901-3000, holding -135",
+                                                      "not reproduced")]
+    assert got([-300.0] * 2899 + [-99.0] * 100) == [(*claim, "-99 in episodes 2900-2999, holding -135", "not measured")]
+    assert got([-99.0] * 50) == [(*claim, "-99 in episodes 1-50, holding -135", "not measured")]
+    assert claims({"f16-05-dgpq-lq5": run(episodes([-99.0] * 3000, "return", seeds=1), env="f16")}) == []
 
 
 def test_the_shaped_f16_claim_is_issue_28s_goal():
@@ -114,3 +143,6 @@ def test_the_shaped_f16_claim_is_issue_28s_goal():
                                                          "not measured")
     for only in refs:
         assert shaped(-104.0, -80.0, **{only: refs[only]}) == []
+    exact = {"f16-05-pd": run(episodes([-70.0] * 100, "return", seeds=1), env="f16"),    # 1.1 x -70 is -77.0 exactly
+             "f16-05-nothing": run(episodes([-136.0] * 100, "return", seeds=1), env="f16")}
+    assert shaped(-103.0, -77.0, **exact)[0].verdict == "reproduced"                     # both ends count
