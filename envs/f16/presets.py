@@ -104,7 +104,9 @@ FLIGHT_05_COST_SHAPED = dict(FLIGHT_05, potential="cost")
 GAMMA99_DGPQ = dict(F16_DGPQ, lipschitz=5.0, gamma=0.99, state_scale=(30.0, 0.0, 60.0, 60.0, 15.0), lengthscale=6.0)
 # "gamma99-shaped": GWH14's own formulation (0.05 s per decision, 200 per episode, the 1,000 ft envelope) at
 # gamma 0.99 with the LQR's potential at the same gamma. Seeds 2000-2003 x 100 episodes: -109 (1-10), -47
-# (11-20), -37 (31-40), -35 (91-100), Q̂ 1,562-1,852 pairs; with the "cost" potential it explores (-244 at
+# (11-20), -37 (31-40), -35 (91-100), Q̂ 1,562-1,852 pairs. Seeds 0-9 x 300 (configs/f16-shaped.toml): L_Q 5
+# -96, -47 (11-20), -33 (91-100), -31 (291-300); L_Q 10 -235, -66 (91-100), -37 (291-300); DQN -232, -44 (91-100),
+# -40 (291-300); PD -39. With the "cost" potential it explores (-244 at
 # 91-100, ~15,000 pairs). On flight with "cost" (gamma 0.95) it holds (-135 to -139, 3-26 pairs).
 GAMMA99_SHAPED = dict(potential="lqr", potential_gamma=0.99)
 FLIGHT_05_DGPQ = dict(F16_DGPQ, lipschitz=5.0, gamma=0.9, eps1=1.0, lengthscale=8.0,
