@@ -99,6 +99,26 @@ def test_the_f16s_claims_need_gwh14s_window():
     assert [c.verdict for c in both] == ["not measured", "reproduced"]              # one short run hides no other
 
 
+def test_gwh14s_marks_in_their_formulation_shaped_at_gamma_99_count_if_no_worse_than_one_and_a_half_times():
+    """`gamma99-shaped`: -47 at L_Q 5 and -113 at L_Q 10 are marks to reach, so better counts (-30), as does
+    exactly 1.5x (-70.5, -169.5), and worse than that does not."""
+    from trl_dgpq.envs.f16.analysis import claims
+
+    def got(name, at, n):
+        curve = [-400.0] * (n - 101) + [at] * 101
+        return [(c.source, c.claim, c.ours, c.verdict)
+                for c in claims({name: run(episodes(curve, "return"), env="f16")})]
+    five = ("this suite (issue 28)", "at γ 0.99, shaped by the LQR's potential (`gamma99-shaped`), DGPQ at L_Q 5: "
+            "reward about -525 at first, -47 by episodes 100-200, stable within 100 episodes")
+    assert got("f16-g99-dgpq-lq5", -30.0, 200) == [
+        (*five, "-400 in episodes 1-10, -30 in 100-200, 2 of 2 seeds stable (agreeing if no worse than 1.5x)",
+         "reproduced")]
+    assert [got("f16-g99-dgpq-lq5", at, 200)[0][3] for at in (-70.5, -70.6)] == ["reproduced", "not reproduced"]
+    assert [got("f16-g99-dgpq-lq10", at, 1000)[0][3] for at in (-169.5, -169.6)] == ["reproduced", "not reproduced"]
+    assert got("f16-g99-dgpq-lq10", -30.0, 999)[0][2:] == ("episodes 900-1000 not reached in this run's 999",
+                                                          "not measured")
+
+
 def test_the_f16_claim_at_half_a_second_is_about_the_last_100_episodes():
     """DGPQ on `flight-05` against holding over all its episodes (the first differs): -135 each, so a tie,
     which is not beating it; 2,999 episodes cannot say; a short run's window starts at episode 1."""
