@@ -392,3 +392,48 @@ def test_the_optimal_cost_to_go_is_lipschitz_in_shares_and_pace_not_in_time():
         return ((value[:, None] - value[None, :]).abs() / d.fill_diagonal_(torch.inf)).max().item()
     assert 2.4 < lipschitz(x, x / k) < 2.6
     assert lipschitz(k / 60, x) > 60
+
+
+# Q̂ never overwritten (every action ties: the seeds end at 4-12 trades); every action at the start overwritten
+@pytest.mark.parametrize("sigma_tol2, levels", [(1e-12, 21), (0.01, 3)])
+def test_start_optimism_is_qhat_at_the_start_less_what_its_greedy_episode_collects(tmp_path, sigma_tol2, levels):
+    """Q̂ at the start state by hand (Eq. 7 over the checkpoint's pairs: min(V_max, mu_i + L_Q |s - s_i|_1),
+    the greedy action's the largest); the value and trades are those of evaluate's one episode per seed
+    (eval.csv, the collector's own sums, seeds ending at different trades); optimism is the difference."""
+    import pandas as pd
+    from trl_dgpq.collectors.evaluate import evaluate, restore
+    from trl_dgpq.commands import train
+    from trl_dgpq.envs.liquidation.analysis import start_optimism
+    out = tmp_path / "run"
+    assert train.main(["--env", "liquidation", "--agent", "dgpq", "--reward", "impact", "--trades", "12",
+                       "--action-levels", str(levels), "--seeds", "4,1,6,2,9", "--episodes", "10",
+                       "--set", f"sigma_tol2={sigma_tol2}",
+                       "--out", str(out), "--no-progress"]) == 0
+    got = start_optimism(out)
+    ev = evaluate(out, episodes=1).set_index("seed").loc[[4, 1, 6, 2, 9]]
+    assert list(got.seed) == [4, 1, 6, 2, 9]
+    assert got.value.tolist() == pytest.approx(ev["return"].tolist(), abs=1e-6)
+    assert got.trades.tolist() == ev.steps.tolist()
+    config, env, agent, state = restore(out)
+    env.for_evaluation()
+    s0 = agent.features(env.reset()["observation"])
+    mu, s = state["agent"]["qhat"]["mu"], state["agent"]["qhat"]["s"]          # (S, A, capacity[, dim])
+    envelope = (mu + agent.cfg.lipschitz * (s - s0[:, None, None, :]).abs().sum(-1)).amin(-1)
+    by_hand = envelope.clamp_max(agent.cfg.v_max).amax(-1)
+    assert got.qhat_start.tolist() == pytest.approx(by_hand.tolist(), abs=1e-12)
+    if sigma_tol2 < 1e-6:
+        assert (got.qhat_pairs == 0).all() and (got.qhat_start == agent.cfg.v_max).all() and ev.steps.nunique() > 2
+    else:
+        assert (got.qhat_pairs > 0).all() and (got.qhat_start < agent.cfg.v_max).all()
+    assert got.optimism.tolist() == pytest.approx((got.qhat_start - got.value).tolist(), abs=1e-12)
+    assert got.per_trade.tolist() == pytest.approx((got.optimism / got.trades).tolist(), abs=1e-12)
+    assert (got.eps1 == agent.cfg.eps1).all()
+
+
+def test_start_optimism_refuses_a_run_without_qhat(tmp_path):
+    from trl_dgpq.commands import train
+    from trl_dgpq.envs.liquidation.analysis import start_optimism
+    assert train.main(["--env", "liquidation", "--agent", "twap", "--trades", "4", "--seeds", "1", "--episodes", "1",
+                       "--out", str(tmp_path / "twap"), "--no-progress"]) == 0
+    with pytest.raises(ValueError, match="is not a DGPQ run"):
+        start_optimism(tmp_path / "twap")

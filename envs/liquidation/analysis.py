@@ -3,6 +3,7 @@ costs against the AC optimum (seed report Figures 6-7), and paired comparisons (
 agent meets the same price paths on the same (seed, episode))."""
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -318,6 +319,40 @@ def drift(df, ref=None, block: int = 500, settle: int = 1000, last: int = 1000) 
                 worst_over_best=max(later) / min(later) if later else float("nan"))
 
 
+def start_optimism(folder) -> "pd.DataFrame":
+    """Per seed of the DGPQ run in ``folder`` (its last checkpoint, exploration and learning off):
+    Q̂ at the start state (its greedy action's value) against the return that greedy policy then
+    collects over one evaluation episode (streams keyed for evaluation, as ``evaluate``; under
+    ``--reward impact`` the return is the policy's value exactly), the optimism Q̂ − return, the
+    episode's trades and the optimism per trade. At γ = 1 an overwrite sets Q̂ to μ + ε₁ on
+    targets that carry the next state's own slack, so the optimism can grow by ε₁ per trade
+    still to come, and a policy that trades more looks better by that much (issue 28)."""
+    import pandas as pd
+
+    from trl_dgpq.collectors.evaluate import Frozen, episode_steps, jobs, restore
+    rows = []
+    for job in jobs(Path(folder)):
+        config, env, agent, _ = restore(job)
+        if not hasattr(agent, "qhat"):
+            raise ValueError(f"{folder} is not a DGPQ run (its agent has no Q̂)")
+        env.for_evaluation()
+        td = env.reset()
+        qhat = agent.qhat_values(agent.features(td["observation"])).max(1).values   # greedy: the largest
+        collected = torch.zeros_like(qhat)
+        trades = torch.zeros(len(qhat), dtype=torch.long)
+        ended = torch.zeros(len(qhat), dtype=torch.bool)
+        for _, nxt, done in episode_steps(env, Frozen(agent).act, td):
+            collected += torch.where(ended, 0.0, nxt["reward"].reshape(-1).to(collected.dtype))
+            trades += (~ended).long()
+            ended = done.clone()   # a seed that has ended steps on with the rest: nothing of it counts
+        for i, seed in enumerate(config["run"]["seeds"]):
+            gap = float(qhat[i] - collected[i])
+            rows.append(dict(seed=seed, eps1=agent.cfg.eps1, qhat_start=float(qhat[i]), value=float(collected[i]),
+                             optimism=gap, trades=int(trades[i]), per_trade=gap / int(trades[i]),
+                             qhat_pairs=int(agent.qhat.size()[i])))
+    return pd.DataFrame(rows)
+
+
 if __name__ == "__main__":   # python -m trl_dgpq.envs.liquidation.analysis RUN [OPTIMUM_RUN]
     import sys
 
@@ -325,3 +360,7 @@ if __name__ == "__main__":   # python -m trl_dgpq.envs.liquidation.analysis RUN 
     got = drift(*(pd.read_csv(Path(p) / "episodes.csv") for p in sys.argv[1:3]))  # (a run without optimal_ac_cost)
     print("ac_cost / optimum per 500 episodes:", " ".join(f"{r:.2f}" for r in got["blocks"]))
     print(f"last 1,000: {got['last']:.3f}; worst / best after 1,000: {got['worst_over_best']:.3f}")
+    config = json.loads((Path(sys.argv[1]) / "config.json").read_text())
+    if config["run"]["agent"] == "dgpq":
+        print("Q̂ at the start state against what its greedy policy collects:")
+        print(start_optimism(sys.argv[1]).round(4).to_string(index=False))
