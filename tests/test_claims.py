@@ -54,6 +54,13 @@ def test_liquidations_claims_from_costs_paired_with_the_optimum():
     assert got[1].verdict == "reproduced" and got[1].ours.startswith("4.30x and 0.48x")
     dear = run(episodes([U_STAR * 4.3], "ac_cost", implementation_shortfall=60.0))   # shortfall 0.6x: off
     assert claims({"liq-ac-optimal": opt, "liq-twap": dear})[1].verdict == "not reproduced"
+    assert [(c.source, c.claim) for c in got] == [
+        ("AC00", f"the optimal schedule's expected cost U* = ${U_STAR:,}"),
+        ("AC00", "TWAP costs 4.3x the optimum's ac_cost at 0.48x its shortfall")]
+    high = run(episodes([U_STAR * 1.06] * 3, "ac_cost", implementation_shortfall=100.0))   # 1.06 U*: outside 1.05x
+    assert claims({"liq-ac-optimal": high})[0].verdict == "not reproduced"
+    slow = run(episodes([U_STAR * 4.3 * 1.15] * 3, "ac_cost", implementation_shortfall=48.0))   # 4.3 x 1.15: outside 1.1x
+    assert claims({"liq-ac-optimal": opt, "liq-twap": slow})[1].verdict == "not reproduced"
     # issue 28's goal on blocks of 500: 1.20, 1.22, 1.24, 1.26 x the optimum after episode 1,000
     steady = pd.DataFrame([dict(seed=0, episode=e, ac_cost=1.0 + 0.2 + 0.02 * ((e - 1) // 500 - 2),
                                 optimal_ac_cost=1.0) for e in range(1, 3001)])
@@ -64,12 +71,26 @@ def test_liquidations_claims_from_costs_paired_with_the_optimum():
     assert claims({"liq-dgpq-tuned": run(flat)})[0].verdict == "reproduced"
     early = claims({"liq-dgpq-tuned": run(flat[flat.episode <= 1000])})[0]
     assert early.verdict == "not measured" and early.ours == "the run ended at episode 1000"
-    # each DGPQ preset with a run gets its own verdict: tuned first, then late
-    both = claims({"liq-dgpq-late": run(flat), "liq-dgpq-tuned": run(steady)})
-    assert [(c.claim.split("`")[1], c.verdict) for c in both] == [("tuned", "not reproduced"), ("late", "reproduced")]
+    # each DGPQ preset with a run gets its own verdict: tuned first, then late, then late with eps1 0.002
+    both = claims({"liq-dgpq-late-eps1": run(steady), "liq-dgpq-late": run(flat), "liq-dgpq-tuned": run(steady)})
+    assert [(c.claim.split("`")[1], c.verdict) for c in both] == [("tuned", "not reproduced"), ("late", "reproduced"),
+                                                                  ("late", "not reproduced")]
+    assert [c.claim.split(" stops")[0] for c in both] == ["DGPQ `tuned`", "DGPQ `late`", "DGPQ `late` with eps1 0.002"]
     # the goal's two bounds: a flat 1.11 fails the last-1,000 bound alone; 1.10 passes it
     assert claims({"liq-dgpq-late": run(steady.assign(ac_cost=1.11))})[0].verdict == "not reproduced"
     assert claims({"liq-dgpq-late": run(steady.assign(ac_cost=1.10))})[0].verdict == "reproduced"
+    # both bounds inclusive, at ratios that come out as the doubles nearest 1.02 and 1.10 (51 / 50, 55 / 50)
+    rising = steady.assign(optimal_ac_cost=50.0, ac_cost=[50.0 if e <= 2000 else 51.0 for e in steady.episode])
+    edge = claims({"liq-dgpq-late": run(rising)})[0]
+    assert edge.ours == "1.02x, last 1,000 at 1.02 U* (3,000 episodes)" and edge.verdict == "reproduced"
+    assert claims({"liq-dgpq-late": run(rising.assign(ac_cost=55.0))})[0].verdict == "reproduced"
+    worse = rising.assign(ac_cost=[50.0 if e <= 2000 else 52.5 for e in rising.episode])   # 1.05x, the last at 1.05
+    assert claims({"liq-dgpq-late": run(worse)})[0].verdict == "not reproduced"
+    # the source and the claims' whole text
+    assert edge.source == early.source == "this suite (issue 28's goal)"
+    assert edge.claim == ("DGPQ `late` stops drifting: after episode 1,000 its worst block of 500 within 1.02x of its "
+                          "best, its last 1,000 episodes at most 1.10 U*")
+    assert early.claim == "DGPQ `tuned` stops drifting after episode 1,000"
 
 
 def test_the_f16s_claims_need_gwh14s_window():

@@ -306,6 +306,10 @@ def test_reproduce_only_plans_the_named_domains():
     assert report["liq-dgpq-tuned"]["run"]["preset"] == "tuned"
     late = report["liq-dgpq-late"]                  # issue 28's late-scoring study, at the report's length
     assert (late["run"]["preset"], late["run"]["episodes"], late["env"]["pace"]) == ("late", 11_000, True)
+    slack = report["liq-dgpq-late-eps1"]            # the same with eps1 0.002, the rest of late's own settings
+    assert (slack["run"]["preset"], slack["run"]["episodes"], slack["agent"]["eps1"]) == ("late", 11_000, 0.002)
+    assert {k: v for k, v in slack["agent"].items() if k != "eps1"} == {k: v for k, v in late["agent"].items()
+                                                                       if k != "eps1"} and late["agent"]["eps1"] > 0.005
     with pytest.raises(SystemExit):  # an unknown domain: argparse's one line, exit 2
         reproduce.main(["--only", "nowhere"])
 
