@@ -400,7 +400,6 @@ def test_start_optimism_is_qhat_at_the_start_less_what_its_greedy_episode_collec
     """Q̂ at the start state by hand (Eq. 7 over the checkpoint's pairs: min(V_max, mu_i + L_Q |s - s_i|_1),
     the greedy action's the largest); the value and trades are those of evaluate's one episode per seed
     (eval.csv, the collector's own sums, seeds ending at different trades); optimism is the difference."""
-    import pandas as pd
     from trl_dgpq.collectors.evaluate import evaluate, restore
     from trl_dgpq.commands import train
     from trl_dgpq.envs.liquidation.analysis import start_optimism

@@ -3,7 +3,6 @@ costs against the AC optimum (seed report Figures 6-7), and paired comparisons (
 agent meets the same price paths on the same (seed, episode))."""
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -365,7 +364,7 @@ if __name__ == "__main__":   # python -m trl_dgpq.envs.liquidation.analysis RUN 
     got = drift(*(pd.read_csv(Path(p) / "episodes.csv") for p in sys.argv[1:3]))  # (a run without optimal_ac_cost)
     print("ac_cost / optimum per 500 episodes:", " ".join(f"{r:.2f}" for r in got["blocks"]))
     print(f"last 1,000: {got['last']:.3f}; worst / best after 1,000: {got['worst_over_best']:.3f}")
-    config = json.loads((Path(sys.argv[1]) / "config.json").read_text())
-    if config["run"]["agent"] == "dgpq":
+    from trl_dgpq.collectors.runner import CONFIG, RunFolder
+    if RunFolder(sys.argv[1]).read_json(CONFIG)["run"]["agent"] == "dgpq":
         print("Q̂ at the start state against what its greedy policy collects:")
         print(start_optimism(sys.argv[1]).round(4).to_string(index=False))
