@@ -492,6 +492,15 @@ def test_reproduce_reuses_only_an_experiment_equal_in_every_setting():
     assert reproduce.same_run(a) == reproduce.same_run(b) and reproduce.same_config(a) != reproduce.same_config(b)
     older = {**a, "run": {k: v for k, v in a["run"].items() if k != "max_memory"}}   # recorded before max_memory
     assert reproduce.same_config(older) == reproduce.same_config(a)
+    # an env or agent setting added since takes its default: equal to a run recorded before it
+    # existed, unless set to something else (the F-16's potential, added after GWH14's runs)
+    f16 = resolve_config(env="f16", agent="pd", seeds=[0], episodes=2)
+    before = {**f16, "env": {k: v for k, v in f16["env"].items() if not k.startswith("potential")}}
+    assert reproduce.same_config(before) == reproduce.same_config(f16)
+    assert reproduce.same_config(before) != reproduce.same_config(
+        resolve_config(env="f16", agent="pd", seeds=[0], episodes=2, potential="lqr"))
+    assert reproduce.same_config({**a, "agent": {k: v for k, v in a["agent"].items() if k != "eps1"}}) == \
+        reproduce.same_config(a)
 
 
 def test_reproduce_reports_the_domains_whose_experiments_all_finished(tmp_path, capsys, monkeypatch):

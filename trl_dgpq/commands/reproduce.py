@@ -55,9 +55,13 @@ def same_run(config: dict) -> dict:
 
 
 def same_config(config: dict) -> dict:
-    """The whole config, its run section as ``same_run`` reads it: what another sweep's experiment
-    must equal for its rows to be taken as this one's (every env and agent setting included)."""
-    return {**config, "run": same_run(config)}
+    """The whole config, each section with today's defaults for settings added since it was
+    recorded (as ``same_run``): what another sweep's experiment must equal for its rows to be
+    taken as this one's (every env and agent setting included)."""
+    from trl_dgpq.collectors.experiment import load_sections
+    from trl_dgpq.config import to_dict
+    run, env, agent = load_sections(config)
+    return {**config, "run": to_dict(run), "env": to_dict(env), "agent": to_dict(agent)}
 
 
 def experiments(scale: str, only=None) -> dict:
