@@ -30,6 +30,16 @@ def one_torch_thread():
 
 
 @pytest.fixture(autouse=True)
+def fewer_bootstraps(request, monkeypatch):
+    """rliable's 2,000 bootstrap replications cost ~0.2 s per interval and ~3 s per performance
+    profile, and a report draws dozens: outside tests/test_stats.py, which checks the intervals
+    at the suite's REPS, tests check what a report says and writes, so 200 do."""
+    if request.module.__name__ != "test_stats":
+        from trl_dgpq.analysis import stats
+        monkeypatch.setattr(stats, "REPS", 200)
+
+
+@pytest.fixture(autouse=True)
 def script_entry(monkeypatch):
     """Every test's commands name themselves as scripts (python scripts/X.py): a test that runs
     ``trl-dgpq X`` sets the module's ENTRY for the process, and later tests' messages must not

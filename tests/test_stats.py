@@ -4,7 +4,7 @@ import warnings
 import numpy as np
 import pytest
 
-from trl_dgpq.analysis import Threshold
+from trl_dgpq.analysis import Threshold, stats
 from trl_dgpq.analysis.stats import iqm, iqm_point, normalised, oriented, probability_of_improvement, profiles
 
 
@@ -90,3 +90,19 @@ def test_per_replication_statistics_are_rliables_bit_for_bit():
         assert probability_of_improvement_1task(x, x.copy()) == 0.5 == metrics.probability_of_improvement(x, x.copy())
     wide = rng.normal(size=(11, 3))           # every entry of a (runs, tasks) matrix, as rliable's
     assert aggregate_iqm(wide) == metrics.aggregate_iqm(wide)
+
+
+def test_the_default_replications_are_reps_at_the_call(monkeypatch):
+    """reps=None reads REPS when called (the suite's 2,000), so a caller, or a test, that sets
+    REPS gets that many."""
+    v = np.array([3.0, 1.0, 4.0, 1.0, 5.0, 9.0, 2.0, 6.0])
+    assert stats.REPS == 2000
+    assert stats.iqm(v) == stats.iqm(v, reps=2000) != stats.iqm(v, reps=200)
+    assert stats.probability_of_improvement(v, v[::-1] + 0.5) == stats.probability_of_improvement(v, v[::-1] + 0.5,
+                                                                                                 reps=2000)
+    monkeypatch.setattr(stats, "REPS", 200)
+    assert stats.iqm(v) == stats.iqm(v, reps=200)
+    taus = np.linspace(0.0, 1.0, 5)
+    scores = {"a": np.array([[0.1, 0.9], [0.4, 0.5]]), "b": np.array([[0.3, 0.2], [0.8, 0.6]])}
+    for x, y in zip(stats.profiles(scores, taus)[1].values(), stats.profiles(scores, taus, reps=200)[1].values()):
+        assert np.array_equal(x, y)

@@ -11,11 +11,13 @@ where less is better (fewer steps, lower cost) is negated first (``oriented``).
 from __future__ import annotations
 
 import warnings
-from typing import Dict, Tuple
+from typing import Dict, Optional, Tuple
 
 import numpy as np
 
-REPS = 2000  # bootstrap replications (rliable's default for profiles; CIs move < 1 % from 2,000 to 50,000)
+REPS = 2000  # bootstrap replications (rliable's default for profiles; CIs move < 1 % from 2,000 to 50,000);
+            # read at each call (reps=None), so the tests that check what a report says, not its
+            # intervals' precision, can draw fewer (tests/conftest.py)
 SEED = 0
 
 
@@ -79,7 +81,7 @@ def iqm_point(values) -> float:
 
 
 @_quiet
-def iqm(values, reps: int = REPS) -> Tuple[float, float, float]:
+def iqm(values, reps: Optional[int] = None) -> Tuple[float, float, float]:
     """(IQM, CI low, CI high) over the runs in ``values`` (NaN dropped); all NaN if none."""
     v = np.asarray(values, dtype=float)
     v = v[~np.isnan(v)]
@@ -87,12 +89,13 @@ def iqm(values, reps: int = REPS) -> Tuple[float, float, float]:
         return (np.nan, np.nan, np.nan)
     library = _rly()
     point, ci = library.get_interval_estimates({"x": v[:, None]}, lambda x: np.array([aggregate_iqm(x)]),
-                                               reps=reps, random_state=np.random.RandomState(SEED))
+                                               reps=REPS if reps is None else reps,
+                                               random_state=np.random.RandomState(SEED))
     return float(point["x"][0]), float(ci["x"][0, 0]), float(ci["x"][1, 0])
 
 
 @_quiet
-def probability_of_improvement(x, y, reps: int = REPS) -> Tuple[float, float, float]:
+def probability_of_improvement(x, y, reps: Optional[int] = None) -> Tuple[float, float, float]:
     """P(X > Y) of a run of X against a run of Y on one task (higher-is-better scores),
     with its 95 % CI: (point, low, high)."""
     x, y = (np.asarray(a, dtype=float) for a in (x, y))
@@ -100,7 +103,7 @@ def probability_of_improvement(x, y, reps: int = REPS) -> Tuple[float, float, fl
     library = _rly()
     point, ci = library.get_interval_estimates(
         {"p": [x[:, None], y[:, None]]}, lambda a, b: np.array([probability_of_improvement_1task(a, b)]),
-        reps=reps, random_state=np.random.RandomState(SEED))
+        reps=REPS if reps is None else reps, random_state=np.random.RandomState(SEED))
     return float(point["p"][0]), float(ci["p"][0, 0]), float(ci["p"][1, 0])
 
 
@@ -125,11 +128,12 @@ def normalised(task_scores: Dict[str, Dict[str, np.ndarray]]) -> Dict[str, np.nd
 
 
 @_quiet
-def profiles(scores: Dict[str, np.ndarray], taus: np.ndarray, reps: int = REPS):
+def profiles(scores: Dict[str, np.ndarray], taus: np.ndarray, reps: Optional[int] = None):
     """rliable's performance profiles (the fraction of runs scoring above each tau) with
     95 % CIs: ({algorithm: (len(taus),)}, {algorithm: (2, len(taus))})."""
     library = _rly()
     # create_performance_profile with its default (score distributions), but with our RandomState:
     # it takes none and would draw from numpy's global one
-    return library.get_interval_estimates(scores, lambda s: library.score_distributions(s, taus), reps=reps,
+    return library.get_interval_estimates(scores, lambda s: library.score_distributions(s, taus),
+                                          reps=REPS if reps is None else reps,
                                           random_state=np.random.RandomState(SEED))
