@@ -436,3 +436,33 @@ def test_start_optimism_refuses_a_run_without_qhat(tmp_path):
                        "--out", str(tmp_path / "twap"), "--no-progress"]) == 0
     with pytest.raises(ValueError, match="is not a DGPQ run"):
         start_optimism(tmp_path / "twap")
+
+
+@pytest.mark.filterwarnings("ignore:.*found in sys.modules")   # runpy: the module is imported already
+@pytest.mark.parametrize("keep", [True, False])
+def test_the_analysis_command_prints_the_blocks_and_says_when_a_run_keeps_no_checkpoint(tmp_path, capsys, keep):
+    """python -m trl_dgpq.envs.liquidation.analysis RUN: the blocks, then Q̂ at the start per seed; an
+    ended tuning trial keeps its rows but no checkpoint: Q̂ at the start said to be unmeasured, in one line."""
+    import runpy
+    import sys
+
+    from trl_dgpq.commands import train
+    out = tmp_path / "run"
+    assert train.main(["--env", "liquidation", "--agent", "dgpq", "--trades", "4", "--action-levels", "3",
+                       "--seeds", "1", "--episodes", "3", "--out", str(out), "--no-progress"]) == 0
+    if not keep:
+        (out / "checkpoint.pt").unlink()
+    capsys.readouterr()
+    argv = sys.argv
+    try:
+        sys.argv = ["analysis", str(out)]
+        runpy.run_module("trl_dgpq.envs.liquidation.analysis", run_name="__main__")
+    finally:
+        sys.argv = argv
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[0].startswith("ac_cost / optimum per 500 episodes: ")
+    if keep:
+        assert lines[-3] == "Q̂ at the start state against what its greedy policy collects:"
+        assert lines[-2].split()[:3] == ["seed", "eps1", "qhat_start"] and lines[-1].split()[0] == "0"
+    else:
+        assert lines[-1] == f"Q̂ at the start state: not measured, {out} keeps no checkpoint.pt"

@@ -364,7 +364,11 @@ if __name__ == "__main__":   # python -m trl_dgpq.envs.liquidation.analysis RUN 
     got = drift(*(pd.read_csv(Path(p) / "episodes.csv") for p in sys.argv[1:3]))  # (a run without optimal_ac_cost)
     print("ac_cost / optimum per 500 episodes:", " ".join(f"{r:.2f}" for r in got["blocks"]))
     print(f"last 1,000: {got['last']:.3f}; worst / best after 1,000: {got['worst_over_best']:.3f}")
-    from trl_dgpq.collectors.runner import CONFIG, RunFolder
-    if RunFolder(sys.argv[1]).read_json(CONFIG)["run"]["agent"] == "dgpq":
-        print("Q̂ at the start state against what its greedy policy collects:")
-        print(start_optimism(sys.argv[1]).round(4).to_string(index=False))
+    from trl_dgpq.collectors.runner import CHECKPOINT, CONFIG, RunFolder
+    run = RunFolder(sys.argv[1])
+    if run.read_json(CONFIG)["run"]["agent"] == "dgpq":
+        if run.file(CHECKPOINT).is_file():
+            print("Q̂ at the start state against what its greedy policy collects:")
+            print(start_optimism(sys.argv[1]).round(4).to_string(index=False))
+        else:   # e.g. an ended tuning trial, which keeps only its rows
+            print(f"Q̂ at the start state: not measured, {sys.argv[1]} keeps no {CHECKPOINT}")
