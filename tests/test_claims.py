@@ -114,10 +114,17 @@ def test_the_f16s_claims_need_gwh14s_window():
     ten = ("GWH14", "DGPQ at L_Q 10: reward about -514 at first, -113 by episodes 900-1000, stable by about 1,000 "
            "episodes")
     assert [(c.source, c.claim, c.ours, c.verdict) for c in claims({"f16-dgpq-lq10": lq10})] == [
-        (*ten, "-500 in episodes 1-10, -109 in 900-1000, 0 of 2 seeds stable (agreeing if within 1.5x)", "reproduced")]
+        (*ten, "-500 in episodes 1-10, -109 in 900-1000, 0 of 2 seeds stable (agreeing if within 1.5x)", "partly")]
+    # the reward agrees but no seed flies stably: partly; half the seeds stable (seed 0 at -40) and the
+    # reward within 1.5x (-113.9 over 900-1,000): reproduced
+    half = run([dict(seed=s, episode=e + 1, **{"return": v}) for s, at in enumerate((-40.0, -180.0))
+                for e, v in enumerate([-500.0] * 900 + [at] * 100)], env="f16")
+    (got,) = claims({"f16-dgpq-lq10": half})
+    assert got.ours == "-500 in episodes 1-10, -114 in 900-1000, 1 of 2 seeds stable (agreeing if within 1.5x)"
+    assert got.verdict == "reproduced"
     assert claims({"f16-dgpq-lq10": run(episodes([-100.0] * 999, "return"), env="f16")})[0].verdict == "not measured"
     both = claims({"f16-dgpq-lq5": run(episodes([-60.0] * 199, "return"), env="f16"), "f16-dgpq-lq10": lq10})
-    assert [c.verdict for c in both] == ["not measured", "reproduced"]              # one short run hides no other
+    assert [c.verdict for c in both] == ["not measured", "partly"]              # one short run hides no other
 
 
 def test_gwh14s_marks_in_their_formulation_shaped_at_gamma_99_count_if_no_worse_than_one_and_a_half_times():
@@ -134,8 +141,9 @@ def test_gwh14s_marks_in_their_formulation_shaped_at_gamma_99_count_if_no_worse_
     assert got("f16-g99-dgpq-lq5", -30.0, 200) == [
         (*five, "-400 in episodes 1-10, -30 in 100-200, 2 of 2 seeds stable (agreeing if no worse than 1.5x)",
          "reproduced")]
-    assert [got("f16-g99-dgpq-lq5", at, 200)[0][3] for at in (-70.5, -70.6)] == ["reproduced", "not reproduced"]
-    assert [got("f16-g99-dgpq-lq10", at, 1000)[0][3] for at in (-169.5, -169.6)] == ["reproduced", "not reproduced"]
+    # at the edge no seed flies stably (-70.5 < -41): the reward agreeing makes it partly, not more
+    assert [got("f16-g99-dgpq-lq5", at, 200)[0][3] for at in (-70.5, -70.6)] == ["partly", "not reproduced"]
+    assert [got("f16-g99-dgpq-lq10", at, 1000)[0][3] for at in (-169.5, -169.6)] == ["partly", "not reproduced"]
     assert got("f16-g99-dgpq-lq10", -30.0, 999)[0][2:] == ("episodes 900-1000 not reached in this run's 999",
                                                           "not measured")
 

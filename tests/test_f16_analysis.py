@@ -342,7 +342,7 @@ def test_the_report_section_against_gwh14_by_hand(tmp_path, monkeypatch):
         "**reproduced**.\n"
         "- GWH14: DGPQ at L_Q 10: reward about -514 at first, -113 by episodes 900-1000, stable by about 1,000 "
         "episodes. Ours: -200 in episodes 1-10, -113 in 900-1000, 0 of 1 seeds stable (agreeing if within 1.5x) -- "
-        "**reproduced**.\n\n"
+        "**partly**.\n\n"
         "![reward](f16/f16_reward.png) ![trace](f16/f16_trace.png)\n")
     # below 1.5 x GWH14's reward (L_Q 5: -80 < -70.5) is not within; GWH14's / 1.5 exactly is
     edge = -113 / 1.5
@@ -351,7 +351,7 @@ def test_the_report_section_against_gwh14_by_hand(tmp_path, monkeypatch):
     runs = {"f16-dgpq-lq5": fake(lq5.assign(**{"return": np.where(lq5.episode >= 100, -80.0, lq5["return"])}), "dgpq"),
             "f16-dgpq-lq10": fake(lq10_edge, "dgpq")}
     assert [s.split("**")[-2] for s in gwh14_sentences(analysis.reproduce_section(runs, out, "", ""))] == [
-        "not reproduced", "reproduced"]
+        "not reproduced", "partly"]                       # L_Q 10's reward agrees; its one seed never flies stably
     # a run short of GWH14's window: said so, no number; L_Q 5 absent: no sentence for it
     short = {"f16-dgpq-lq10": fake(lq10[lq10.episode <= 999], "dgpq")}
     assert gwh14_sentences(analysis.reproduce_section(short, out, "smoke", "t")) == [

@@ -240,7 +240,8 @@ def part(prefix: str, runs: dict, out: Path, title: str) -> str:
 
 def figure3(runs: dict, names: tuple, source: str, variant: str, rule: str, judge) -> list:
     """GWH14's Figure 3 marks (the reward by episodes 100-200 at L_Q 5, 900-1,000 at L_Q 10)
-    against the runs ``names`` (L_Q 5, L_Q 10), each judged by ``judge(ours, theirs)``."""
+    against the runs ``names`` (L_Q 5, L_Q 10), each judged by ``judge(ours, theirs)``; a reward
+    that agrees while fewer than half the seeds ever fly stably is "partly" (GWH14 claim both)."""
     from trl_dgpq.analysis.claims import Claim
     out = []
     for n, L in zip(names, (5, 10)):
@@ -254,9 +255,12 @@ def figure3(runs: dict, names: tuple, source: str, variant: str, rule: str, judg
         if ran < hi:   # a window the run only began is not GWH14's window
             out.append(Claim(source, claim, f"episodes {lo}-{hi} not reached in this run's {ran}", "not measured"))
             continue
-        ours = window_reward(df, lo, hi)
+        ours, flew = window_reward(df, lo, hi), int(stable.notna().sum())
+        verdict = judge(ours, r1)
+        if verdict == "reproduced" and 2 * flew < len(stable):
+            verdict = "partly"
         out.append(Claim(source, claim, f"{window_reward(df, 1, 10):.0f} in episodes 1-10, {ours:.0f} in {lo}-{hi}, "
-                         f"{stable.notna().sum()} of {len(stable)} seeds stable ({rule})", judge(ours, r1)))
+                         f"{flew} of {len(stable)} seeds stable ({rule})", verdict))
     return out
 
 
