@@ -122,6 +122,10 @@ def test_the_f16s_claims_need_gwh14s_window():
     (got,) = claims({"f16-dgpq-lq10": half})
     assert got.ours == "-500 in episodes 1-10, -114 in 900-1000, 1 of 2 seeds stable (agreeing if within 1.5x)"
     assert got.verdict == "reproduced"
+    third = run([dict(seed=s, episode=e + 1, **{"return": v}) for s, at in enumerate((-40.0, -150.0, -150.0))
+                 for e, v in enumerate([-500.0] * 900 + [at] * 100)], env="f16")          # -117 over 900-1,000
+    assert [(c.ours.split(", ")[-1], c.verdict) for c in claims({"f16-dgpq-lq10": third})] == [
+        ("1 of 3 seeds stable (agreeing if within 1.5x)", "partly")]                        # fewer than half
     assert claims({"f16-dgpq-lq10": run(episodes([-100.0] * 999, "return"), env="f16")})[0].verdict == "not measured"
     both = claims({"f16-dgpq-lq5": run(episodes([-60.0] * 199, "return"), env="f16"), "f16-dgpq-lq10": lq10})
     assert [c.verdict for c in both] == ["not measured", "partly"]              # one short run hides no other
