@@ -44,6 +44,13 @@ def _quiet(estimate):
     return quiet
 
 
+def _intervals(scores: dict, estimate, reps: Optional[int]):
+    """rliable's point estimates and stratified-bootstrap 95 % CIs of ``estimate`` over ``scores``,
+    ``reps`` replications (None: REPS, read now) from the fixed RandomState."""
+    return _rly().get_interval_estimates(scores, estimate, reps=REPS if reps is None else reps,
+                                         random_state=np.random.RandomState(SEED))
+
+
 def oriented(values: np.ndarray, lower_is_better: bool) -> np.ndarray:
     """``values`` as higher-is-better scores: negated where less is better (fewer steps, lower cost)."""
     values = np.asarray(values, dtype=float)
@@ -87,10 +94,7 @@ def iqm(values, reps: Optional[int] = None) -> Tuple[float, float, float]:
     v = v[~np.isnan(v)]
     if len(v) == 0:
         return (np.nan, np.nan, np.nan)
-    library = _rly()
-    point, ci = library.get_interval_estimates({"x": v[:, None]}, lambda x: np.array([aggregate_iqm(x)]),
-                                               reps=REPS if reps is None else reps,
-                                               random_state=np.random.RandomState(SEED))
+    point, ci = _intervals({"x": v[:, None]}, lambda x: np.array([aggregate_iqm(x)]), reps)
     return float(point["x"][0]), float(ci["x"][0, 0]), float(ci["x"][1, 0])
 
 
@@ -100,10 +104,8 @@ def probability_of_improvement(x, y, reps: Optional[int] = None) -> Tuple[float,
     with its 95 % CI: (point, low, high)."""
     x, y = (np.asarray(a, dtype=float) for a in (x, y))
     x, y = x[~np.isnan(x)], y[~np.isnan(y)]
-    library = _rly()
-    point, ci = library.get_interval_estimates(
-        {"p": [x[:, None], y[:, None]]}, lambda a, b: np.array([probability_of_improvement_1task(a, b)]),
-        reps=REPS if reps is None else reps, random_state=np.random.RandomState(SEED))
+    point, ci = _intervals({"p": [x[:, None], y[:, None]]},
+                           lambda a, b: np.array([probability_of_improvement_1task(a, b)]), reps)
     return float(point["p"][0]), float(ci["p"][0, 0]), float(ci["p"][1, 0])
 
 
@@ -134,6 +136,4 @@ def profiles(scores: Dict[str, np.ndarray], taus: np.ndarray, reps: Optional[int
     library = _rly()
     # create_performance_profile with its default (score distributions), but with our RandomState:
     # it takes none and would draw from numpy's global one
-    return library.get_interval_estimates(scores, lambda s: library.score_distributions(s, taus),
-                                          reps=REPS if reps is None else reps,
-                                          random_state=np.random.RandomState(SEED))
+    return _intervals(scores, lambda s: library.score_distributions(s, taus), reps)
