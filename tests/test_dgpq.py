@@ -115,6 +115,25 @@ def test_q_target_bootstraps_on_qhat_except_at_terminal():
     assert ag.q_target(t([1.0]), t([[0.2]]), torch.tensor([False])).item() == pytest.approx(1.0 + 0.5 * 4.0)
 
 
+def test_slack_once_bootstraps_on_qhat_less_eps1_except_at_terminal():
+    ag = agent_1d(slack="once", eps1=0.25)
+    assert ag.q_target(t([1.0]), t([[0.2]]), torch.tensor([False])).item() == pytest.approx(1.0 + 0.5 * 9.75)
+    assert ag.q_target(t([1.0]), t([[0.2]]), torch.tensor([True])).item() == pytest.approx(1.0)
+    ag.qhat.insert(t([[0.2]]), torch.tensor([0]), t([3.0]), torch.tensor([True]))
+    ag.qhat.insert(t([[0.2]]), torch.tensor([1]), t([4.0]), torch.tensor([True]))
+    assert ag.q_target(t([1.0]), t([[0.2]]), torch.tensor([False])).item() == pytest.approx(1.0 + 0.5 * 3.75)
+    # ... and so the overwrite at a state whose successor was overwritten carries one eps1, not two:
+    # Q̂(0.2) = 4 for both actions after the inserts below (Q̂_0(0.1) = 4 + 10 * 0.1 = 5), so a confident sample at 0.1 going to 0.2
+    # with reward 0 and gamma 1 gives 4 - eps1 + eps1 = 4 under "once", 4 + eps1 under Algorithm 1.
+    for slack, expect in [("once", 4.0), ("algorithm-1", 4.25)]:
+        ag = agent_1d(slack=slack, eps1=0.25, gamma=1.0, lipschitz=10.0, noise_var=1e-6, sigma_tol2=0.01)
+        for a in (0, 1):
+            ag.qhat.insert(t([[0.2]]), torch.tensor([a]), t([4.0]), torch.tensor([True]))
+        out = step(ag, 0.1, 0, 0.0, 0.2)
+        assert out["update"].item()
+        assert ag.qhat(t([[0.1]]))[0, 0].item() == pytest.approx(expect, abs=1e-4)
+
+
 def test_one_confident_sample_overwrites_qhat_and_resets_every_gp():
     ag = agent_1d()
     out = step(ag, 0.4, 1, 5.0, 0.5)          # q = 5 + 0.5*10 = 10 = Q̂: GP learns, no overwrite

@@ -6,6 +6,7 @@ masks here. Per step t, with state s_t (names as in the paper):
     1. a_t = argmax_a Q̂_a(s_t), ties uniformly at random         -> act
     2. act, observe r_t, s_{t+1}                                    (environment)
     3. q_t = r_t + gamma max_a Q̂_a(s_{t+1})   (no bootstrap if terminal) -> q_target
+       (the variant slack="once": gamma (max_a Q̂_a(s_{t+1}) - eps1))
     4. sigma1^2 = var GP_{a_t}(s_t); if > sigma_tol2: add (s_t, q_t)  -> learn_gp
     5. sigma2^2 = var GP_{a_t}(s_t)
     6. if sigma1^2 > sigma_tol2 >= sigma2^2 and Q̂_{a_t}(s_t) - mean GP_{a_t}(s_t) > 2 eps1:
@@ -36,6 +37,7 @@ from .rng import TIE_STREAM, SeedStreams
 from .tuning import LogUniform
 
 COVERINGS = ("env", "unit-square")
+SLACKS = ("algorithm-1", "once")
 
 
 @dataclass
@@ -54,6 +56,11 @@ class DGPQConfig:
                                    within="(0, inf)")
     delta: Optional[float] = setting(None, "Section 5 confidence delta", within="(0, 1)")
     r_max: Optional[float] = setting(None, "Section 5 R_max", within="(0, inf)")
+    slack: str = setting("algorithm-1", "where eps1's margin goes: algorithm-1 (step 3 bootstraps on Q̂(s'), whose "
+                                        "eps1 then adds up over the steps to come: at gamma 1, K eps1 over K steps) "
+                                        "or once (a variant, not GWH14: step 3 bootstraps on Q̂(s') - eps1, so "
+                                        "each state's Q̂ carries one eps1; docs/domains/liquidation.md)",
+                         choices=SLACKS)
     covering: str = setting("env", "Section 5 covering number N_S: env (from the env's state box and the "
                                    "metric) or unit-square (the seed report's ceil(1/(pi r^2)))", choices=COVERINGS)
     metric: str = setting("l1", "state metric d of Q̂", choices=tuple(METRICS))
@@ -262,6 +269,8 @@ class DGPQ:
     # Step 3
     def q_target(self, r: torch.Tensor, s_next: torch.Tensor, terminal: torch.Tensor) -> torch.Tensor:
         bootstrap = self.qhat_values(s_next).amax(-1)
+        if self.cfg.slack == "once":  # take off the eps1 that step 6 put on Q̂(s'), so it does not add up
+            bootstrap = bootstrap - self.cfg.eps1
         return r + self.cfg.gamma * torch.where(terminal, torch.zeros_like(bootstrap), bootstrap)
 
     # Steps 4 and 5
