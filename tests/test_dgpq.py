@@ -113,6 +113,12 @@ def test_q_target_bootstraps_on_qhat_except_at_terminal():
     assert ag.q_target(t([1.0]), t([[0.2]]), torch.tensor([False])).item() == pytest.approx(1.0 + 0.5 * 10.0)
     ag.qhat.insert(t([[0.2]]), torch.tensor([1]), t([4.0]), torch.tensor([True]))
     assert ag.q_target(t([1.0]), t([[0.2]]), torch.tensor([False])).item() == pytest.approx(1.0 + 0.5 * 4.0)
+    # Per seed: the max is over each seed's own actions, never across seeds.
+    two = agent_1d(seeds=(0, 1))
+    for a in (0, 1):
+        two.qhat.insert(t([[0.2], [0.2]]), torch.tensor([a, a]), t([3.0, 4.0]), torch.tensor([True, True]))
+    q = two.q_target(t([1.0, 1.0]), t([[0.2], [0.2]]), torch.tensor([False, False]))
+    assert q.tolist() == pytest.approx([1.0 + 0.5 * 3.0, 1.0 + 0.5 * 4.0])
 
 
 def test_slack_once_bootstraps_on_qhat_less_eps1_except_at_terminal():
