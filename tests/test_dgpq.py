@@ -129,8 +129,9 @@ def test_slack_once_bootstraps_on_qhat_less_eps1_except_at_terminal():
     ag.qhat.insert(t([[0.2]]), torch.tensor([1]), t([4.0]), torch.tensor([True]))
     assert ag.q_target(t([1.0]), t([[0.2]]), torch.tensor([False])).item() == pytest.approx(1.0 + 0.5 * 3.75)
     # ... and so the overwrite at a state whose successor was overwritten carries one eps1, not two:
-    # Q̂(0.2) = 4 for both actions after the inserts below (Q̂_0(0.1) = 4 + 10 * 0.1 = 5), so a confident sample at 0.1 going to 0.2
-    # with reward 0 and gamma 1 gives 4 - eps1 + eps1 = 4 under "once", 4 + eps1 under Algorithm 1.
+    # Q̂(0.2) = 4 for both actions after the inserts below (Q̂_0(0.1) = 4 + 10 * 0.1 = 5), so a
+    # confident sample at 0.1 going to 0.2 with reward 0 and gamma 1 gives 4 - eps1 + eps1 = 4
+    # under "once", 4 + eps1 under Algorithm 1.
     for slack, expect in [("once", 4.0), ("algorithm-1", 4.25)]:
         ag = agent_1d(slack=slack, eps1=0.25, gamma=1.0, lipschitz=10.0, noise_var=1e-6, sigma_tol2=0.01)
         for a in (0, 1):

@@ -56,10 +56,10 @@ class DGPQConfig:
                                    within="(0, inf)")
     delta: Optional[float] = setting(None, "Section 5 confidence delta", within="(0, 1)")
     r_max: Optional[float] = setting(None, "Section 5 R_max", within="(0, inf)")
-    slack: str = setting("algorithm-1", "where eps1's margin goes: algorithm-1 (step 3 bootstraps on Q̂(s'), whose "
-                                        "eps1 then adds up over the steps to come: at gamma 1, K eps1 over K steps) "
-                                        "or once (a variant, not GWH14: step 3 bootstraps on Q̂(s') - eps1, so "
-                                        "each state's Q̂ carries one eps1; docs/domains/liquidation.md)",
+    slack: str = setting("algorithm-1", "where eps1's margin goes: algorithm-1 (step 3 bootstraps on Q̂(s'), so "
+                                        "each overwrite adds eps1 to the margins Q̂(s') carries: at gamma 1 at least "
+                                        "K eps1 over K steps) or once (a variant, not GWH14: step 3 bootstraps on "
+                                        "Q̂(s') - eps1, so an overwrite adds none; docs/domains/liquidation.md)",
                          choices=SLACKS)
     covering: str = setting("env", "Section 5 covering number N_S: env (from the env's state box and the "
                                    "metric) or unit-square (the seed report's ceil(1/(pi r^2)))", choices=COVERINGS)
