@@ -82,8 +82,11 @@ class SavedFigures(dict):
     def problems(self, name: str) -> list:
         """What a reader would trip on in figure ``name``: a title missing or cut at the image's
         edge, a log axis with fewer than three labels, an episode axis ticked between episodes,
-        a line's point outside its axes' limits (or at or below zero on a log axis)."""
+        a line's point outside its axes' limits (or at or below zero on a log axis), two labelled
+        lines of one axes drawn alike (the same colour and line style)."""
         import math
+
+        import matplotlib.colors
         fig, found = self[name], []
         fig.canvas.draw()
         box = fig.bbox
@@ -95,6 +98,12 @@ class SavedFigures(dict):
             if e.x0 < box.x0 - 1 or e.x1 > box.x1 + 1 or e.y0 < box.y0 - 1 or e.y1 > box.y1 + 1:
                 found.append(f"title {t.get_text()!r} cut at the edge")
         for ax in fig.axes:
+            looks = {}
+            for line in ax.get_lines():
+                if not line.get_label().startswith("_"):
+                    looks.setdefault((matplotlib.colors.to_hex(line.get_color()), line.get_linestyle()), []).append(
+                        line.get_label())
+            found += [f"{labels} drawn alike" for labels in looks.values() if len(labels) > 1]
             for axis, (lo, hi) in (("x", sorted(ax.get_xlim())), ("y", sorted(ax.get_ylim()))):
                 which = getattr(ax, f"{axis}axis")
                 shown = [(loc, lab.get_text()) for loc, lab in zip(which.get_majorticklocs(), which.get_majorticklabels())

@@ -251,6 +251,22 @@ def test_cost_figure_keeps_every_block_mean_on_its_axis_and_legends_off_the_curv
         assert not any(legend.overlaps(ax.get_window_extent()) for ax in drawn.axes)
 
 
+def test_cost_figure_draws_fourteen_runs_each_its_own_way(tmp_path, saved_figures):
+    """The report's liquidation figure draws 14 runs: matplotlib's 10-colour cycle gave the 11th
+    the 1st one's colour (ddpg-course looked like ac-optimal); every run is told apart, in the
+    cost figure and the time figure."""
+    from tests.test_report import fake_run
+    from trl_dgpq.analysis import load_run
+    from trl_dgpq.envs.liquidation.analysis import figures
+    runs = [load_run(fake_run(tmp_path / f"r{k}", "liquidation", {0: [60] * 2}, agent="twap")) for k in range(14)]
+    for run in runs:
+        run.df["implementation_shortfall"], run.df["ac_cost"] = 5e5, 7e5
+    figures(runs, [f"run {k}" for k in range(14)], tmp_path, block=1, title="t")
+    for name in ("liquidation_cost.png", "liquidation_time.png"):
+        assert not [p for p in saved_figures.problems(name) if "drawn alike" in p], name
+        assert len(saved_figures[name].axes[0].get_lines()) >= 14
+
+
 def test_drift_is_the_paired_cost_ratio_per_block_by_hand():
     """3 blocks of 2 episodes, one seed: costs 4, 4 | 3, 3 | 6, 2 against an optimum of 2 each
     (and an extra pair the learner lacks): ratios 2, 1.5, 2; the last 2 episodes 8/4 = 2; after

@@ -67,7 +67,7 @@ def figures(runs, labels, out: Path, block: int = 100, last=None, title: str = "
     panels: a legend inside a panel covered its curves."""
     import matplotlib.pyplot as plt
 
-    from trl_dgpq.analysis.figures import episode_axis, log_axis, save
+    from trl_dgpq.analysis.figures import episode_axis, line_style, log_axis, save
     model = ACModel.from_config(from_dict(LiquidationConfig, runs[0].config["env"]))
     gammas = sorted({r.gamma for r in runs if r.gamma is not None}) or [None]
     schedules = any(r.gamma is None for r in runs)
@@ -87,7 +87,7 @@ def figures(runs, labels, out: Path, block: int = 100, last=None, title: str = "
             b = min(block, int(df["episode"].max()))  # a run shorter than a block still draws a point
             blk = (df["episode"] - 1) // b
             x = (blk.groupby(blk).first() + 1) * b
-            style = dict(lw=1.2, marker="o" if blk.nunique() < 3 else None, ms=3, color=f"C{k}")
+            style = dict(lw=1.2, marker="o" if blk.nunique() < 3 else None, ms=3, **line_style(k))
             for row, (col, *_) in enumerate(panels):
                 y = df[col].groupby(blk).mean()
                 handles[label], = axes[row, j].plot(x, y, label=label, **style)

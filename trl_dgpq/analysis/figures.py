@@ -9,8 +9,14 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.ticker  # noqa: E402
+from cycler import cycler  # noqa: E402
 
 from .summary import band  # noqa: E402
+
+# tab10's colours, then the same dashed, then dash-dotted: the report's liquidation panels draw 14
+# runs, and matplotlib's default cycle gave the 11th the 1st one's look (ddpg-course = ac-optimal).
+CYCLE = cycler(linestyle=["-", "--", "-."]) * cycler(color=plt.get_cmap("tab10").colors)
+plt.rcParams["axes.prop_cycle"] = CYCLE
 
 FIGURES = {
     "steps_per_episode.png": ("steps per episode", lambda df: df["steps"]),
@@ -103,6 +109,13 @@ def log_axis(ax, formatter=plain, integer: bool = False, axis: str = "y") -> Non
 
 def log_steps_axis(ax) -> None:
     log_axis(ax, integer=True)
+
+
+def line_style(k: int) -> dict:
+    """The k-th run's colour and line style, for a run drawn in several axes (each axes starts
+    its own cycle, so the k-th line of one need not be the k-th run)."""
+    styles = list(CYCLE)
+    return styles[k % len(styles)]
 
 
 def episode_axis(ax) -> None:
