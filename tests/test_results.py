@@ -95,3 +95,14 @@ def test_publish_copies_the_report_tables_and_figures_and_nothing_of_the_runs(tm
     assert sorted(p.relative_to(to).as_posix() for p in copied) == ["REPORT.md", "claims.md", "results.csv",
                                                                     "square/qhat.png"]
     assert not (to / "old" / "gone.png").exists() and (to / "notes.txt").read_text() == "kept"
+
+
+def test_the_readmes_tally_is_the_committed_claims():
+    """The README quotes the committed report's verdict counts; a republished report that moves
+    them must move the README too."""
+    import re
+    tally = re.search(r"(\d+) reproduced, (\d+) partly, (\d+) not reproduced, (\d+) no number",
+                      (ROOT / "results/report/claims.md").read_text())
+    quoted = re.search(r"(\d+) claims reproduced, (\d+) partly, (\d+) not, (\d+) with no number",
+                       (ROOT / "README.md").read_text())
+    assert tally and quoted and tally.groups() == quoted.groups()
