@@ -23,6 +23,10 @@ PRESETS = {
                                       update="critic-then-actor", start_above_batch=True)}},
     # TD3 (agents/td3.py): the TD3 paper's settings (TD3Config's defaults), on either reward.
     "td3": {"shortfall": {}, "utility-ratio": UTILITY_RATIO},
+    # Studies' presets are in tuned.json, each with its provenance: dgpq `tuned` (issue 27),
+    # `late` (scored on the late blocks) and `once` (`--slack once`, L_Q 2.25, eps1 0.0032: 1.082
+    # U* over episodes 4,001-5,000 on seeds 2000-2003, 1.083 under Algorithm 1; both turn later,
+    # at ~9,800 and ~6,600). Every probe, its settings, seeds and result: docs/domains/liquidation.md.
     "dgpq": {
         # Tuned on the shortfall reward (docs/domains/liquidation.md says why): the state is
         # (trades left, shares left) -- in a random walk past returns predict nothing, so the
