@@ -125,6 +125,45 @@ def test_objective_measure_at_budget_by_hand():
     assert late.per_seed(run).tolist() == [8.5, 18.5, 28.5, 38.5] and "last 4 episodes" in late.text
 
 
+def test_objective_worst_by_hand():
+    """--objective worst over 4 stages of 12 episodes (3, 6, 9, 12), window 3: each seed's worst
+    block of 3 episodes ending at 6, 9 and 12 (the first stage's block is not scored); seeds'
+    episodes differ in length, and each seed is scored at its own episodes, not the fewest steps
+    any seed ran. A run staged to its k-th end scores the worst so far (NaN before the second)."""
+    costs = {0: [9, 9, 9, 2, 2, 2, 1, 1, 1, 1, 1, 4],       # blocks 4-6: 2, 7-9: 1, 10-12: 2 -> 2
+             1: [5, 5, 5, 1, 1, 1, 3, 3, 3, 1, 1, 1],       # 1, 3, 1 -> 3
+             2: [1, 1, 1, 1, 1, 1, 1, 1, 1, 7, 1, 1],       # 1, 1, 3 -> 3
+             3: [0, 0, 0, 6, 6, 6, 5, 5, 5, 0, 0, 0]}       # 6, 5, 0 -> 6
+    df = frame([(s, e + 1, 5 + 10 * s, c) for s, cs in costs.items() for e, c in enumerate(cs)])
+    run = Run(Path("."), df, {"run": {"env": "liquidation", "env_steps": 0, "episodes": 12}})
+    stages = [dict(episodes=e, env_steps=0) for e in (3, 6, 9, 12)]
+    obj = objective("liquidation", "worst", window=3, stages=stages)
+    assert obj.direction == "minimize" and obj.stages == ((6, 0), (9, 0), (12, 0))
+    assert obj.per_seed(run).tolist() == [2, 3, 3, 6]
+    assert obj.value(run) == pytest.approx(3)                  # IQM of 4: the middle two
+    assert "6, 9, 12" in obj.text and "last 3 episodes" in obj.text
+    assert obj.per_seed(stage(run, stages[2])).tolist() == [2, 3, 1, 6]
+    assert obj.per_seed(stage(run, stages[0])).isna().all()
+    # a return (more is better) takes the lowest block
+    df["return"] = -df["cost_ratio"]
+    ret = Objective("worst return", "", "maximize", None, "return", 3, obj.stages)
+    assert ret.per_seed(run).tolist() == [-2, -3, -3, -6]
+    # a budget of env steps scores each end at its steps (each seed's last 3 episodes within them)
+    steps = objective("liquidation", "worst", window=3, stages=[dict(episodes=12, env_steps=s) for s in (15, 30, 60)])
+    ran = Run(Path("."), df, {"run": {"env": "liquidation", "env_steps": 60, "episodes": 12}})
+    # (the first end, 15 steps, not scored) seed 0 (5 steps an episode): episodes 4-6, 10-12 -> 2;
+    # seed 1 (15): 1-2, 2-4 -> 5; seed 2 (25): 1, 1-2 -> 1; seed 3 (35): none, 1 -> 0 (the ends it has)
+    assert steps.per_seed(ran).tolist() == [2, 5, 1, 0] and "30 steps, 60 steps" in steps.text
+    with pytest.raises(ValueError, match="at least two stages"):
+        objective("liquidation", "worst", window=3, stages=stages[:1])
+
+
+def test_a_worst_study_needs_two_stages(capsys):
+    with pytest.raises(SystemExit) as exc:
+        tune.main([*TINY, "--stages", "1", "--out", "unused", "--objective", "worst"])
+    assert exc.value.code == 2 and "at least two stages" in capsys.readouterr().err
+
+
 def test_a_study_keeps_its_window(tmp_path, capsys):
     out = str(tmp_path / "study")
     assert tune.main([*TINY, "--episodes", "2", "--out", out, "--trials", "1", "--objective", "measure",

@@ -39,7 +39,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from trl_dgpq.analysis.objective import at_budget_objective, objective, stage
+from trl_dgpq.analysis.objective import at_budget_objective, objective, stage, worst_objective
 from trl_dgpq.analysis.runs import load_run
 from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import classes, resolve_config, split_overrides
@@ -68,10 +68,13 @@ class TuneConfig:
     prune_after: int = setting(5, "trials that must have ended before MedianPruner stops any "
                                   "(its n_startup_trials)", within="[0, inf)")
     objective: str = setting("report", "what a trial is scored by: 'report', what report.py shows (steps to the "
-                                       "domain's threshold where it has one, else its measure at the budget), or "
+                                       "domain's threshold where it has one, else its measure at the budget), "
                                        "'measure', the measure at the budget even where there is a threshold (a "
-                                       "threshold few trials meet scores them all alike: the budget)",
-                             choices=("report", "measure"))
+                                       "threshold few trials meet scores them all alike: the budget), or 'worst', "
+                                       "the worst of the measure at the ends of the stages after the first (a "
+                                       "learner that stays good: --stages 0.2,0.3,...,1 --window 500 of 5,000 "
+                                       "episodes scores the worst block of 500 after the first 1,000)",
+                             choices=("report", "measure", "worst"))
     window: int = setting(10, "episodes at the end of a trial's budget that the measure is averaged over (a "
                               "domain without a threshold, or --objective measure): more scores how a learner "
                               "ends rather than a lucky stretch", within="[1, inf)")
@@ -89,6 +92,8 @@ class TuneConfig:
     def cross_check(self) -> None:
         if list(self.stages) != sorted(set(self.stages)) or self.stages[-1] != 1:
             raise ValueError(f"stages must increase and end at 1, got {list(self.stages)}")
+        if self.objective == "worst" and len(self.stages) < 2:
+            raise ValueError("objective 'worst' scores the stages after the first: give at least two stages")
         for text in self.search:
             parse_range(text)
 
@@ -181,13 +186,16 @@ class Study:
         self.name = self.out.resolve().name
         self.tune = from_dict(TuneConfig, request["tune"])
         self.config = request["config"]
-        self.objective = objective(self.config["run"]["env"], self.tune.objective, self.tune.window)
+        self.stages = stage_lengths(self.config["run"], self.tune.stages)
+        self.objective = objective(self.config["run"]["env"], self.tune.objective, self.tune.window, self.stages)
         # the column its trials were scored on, kept: were the env's measure to change, new trials
         # would otherwise be scored on another scale than the old ones and compared with them
         scored = request.setdefault("scored", self.objective.column)
         if scored != self.objective.column:
-            self.objective = at_budget_objective(scored, scored, self.objective.direction, self.tune.window,
-                                                 "; the env's measure when the study began")
+            args = (scored, scored, self.objective.direction, self.tune.window)
+            note = "; the env's measure when the study began"
+            self.objective = (worst_objective(*args, self.stages, note) if self.tune.objective == "worst"
+                              else at_budget_objective(*args, note))
         agent_cls = classes(self.config["run"])[1]
         given = split_overrides(self.given_agent_env(), *classes(self.config["run"]))
         weights = {name: self.value_of("agent", name) for name, _ in map(parse_range, self.tune.search)
@@ -198,7 +206,6 @@ class Study:
                       if find_leaf(agent_cls.Config, k).key not in given["agent"] or isinstance(r, Factors)}
         if not self.space:
             raise ValueError("every setting of the search space is given on the command line: nothing to tune")
-        self.stages = stage_lengths(self.config["run"], self.tune.stages)
 
     # ------------------------------------------------------------ opening
     @classmethod

@@ -7,6 +7,9 @@ the domain, per seed, and its interquartile mean over the tuning seeds.
 - Otherwise the domain's measure at the budget: each seed's mean over its last ``WINDOW``
   episodes within the budget, in the domain's direction (``MEASURE_LOWER_IS_BETTER``; the
   return by default, more is better).
+- Or (kind "worst") the worst of that measure at the ends of a study's stages after the
+  first: a learner that gets good and stays good, not one good at the end only (issue 28's
+  liquidation goal: no block of 500 episodes after the first 1,000 much above the best).
 
 The budget is the report's for one run (``default_budget``): its ``env_steps``, or for a run
 budgeted in episodes the fewest steps any of its seeds ran. The IQM (rliable's, as the
@@ -16,7 +19,7 @@ to one seed's luck.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
+from typing import Optional, Tuple
 
 import pandas as pd
 
@@ -34,13 +37,39 @@ class Objective:
     threshold: Optional[Threshold]  # steps to it, or (None) the measure at the budget:
     column: str
     window: int = WINDOW            # the measure's episodes at the end of the budget
+    stages: Tuple[Tuple[int, int], ...] = ()  # (episodes, env_steps) ends where "worst" looks (empty: the budget)
 
     def per_seed(self, run: Run) -> pd.Series:
+        if self.stages:
+            return self.worst_per_seed(run)
         budget = default_budget([(None, run)])
         run.need(self.column)
         if self.threshold is not None:
             return steps_to_threshold(run.df, self.threshold, budget).fillna(budget)
         return at_budget(run.df, self.column, budget, self.window)
+
+    def worst_per_seed(self, run: Run) -> pd.Series:
+        """Per seed, the worst of the measure at each of ``stages`` that ``run`` reaches (NaN
+        where it reaches none): a run staged to its k-th end scores the worst so far, so the
+        pruner sees a value that can only get worse as the trial goes on. A budget of episodes
+        ends each seed at the stage's episode (episodes differ in length: the fewest steps any
+        seed ran would cut a seed with short episodes early)."""
+        run.need(self.column)
+        df, ran = run.df, run.config["run"]
+        seeds = sorted(df["seed"].unique())
+        values = []
+        for episodes, steps in self.stages:
+            if episodes > ran["episodes"] or (ran["env_steps"] and steps > ran["env_steps"]):
+                continue
+            if steps:
+                values.append(at_budget(df, self.column, steps, self.window).reindex(seeds))
+            else:
+                block = df[(df["episode"] <= episodes) & (df["episode"] > episodes - self.window)]
+                values.append(block.groupby("seed")[self.column].mean().reindex(seeds))
+        if not values:
+            return pd.Series(float("nan"), index=seeds)
+        values = pd.concat(values, axis=1)
+        return values.max(axis=1) if self.direction == "minimize" else values.min(axis=1)  # of the ends it has
 
     def value(self, run: Run) -> float:
         """The IQM over seeds of ``per_seed`` (NaN if no seed has a value: none ended an episode
@@ -48,20 +77,37 @@ class Objective:
         return iqm_point(self.per_seed(run))
 
 
-def objective(env: str, kind: str = "report", window: int = WINDOW) -> Objective:
+def objective(env: str, kind: str = "report", window: int = WINDOW, stages=()) -> Objective:
     """``env``'s objective: ``kind`` "report" as the module says, "measure" the measure at the
-    budget even where the domain has a threshold; the measure averaged over each seed's last
-    ``window`` episodes (more: a study that scores how a learner ends, not one lucky stretch)."""
+    budget even where the domain has a threshold, "worst" the worst of the measure at the ends
+    of ``stages`` ([{"episodes", "env_steps"}], a study's) after the first; the measure averaged
+    over each seed's last ``window`` episodes (more: a study that scores how a learner ends, not
+    one lucky stretch)."""
     from trl_dgpq.envs import domain, split_name
     d, env_id = domain(env), split_name(env)[1]
-    if kind not in ("report", "measure"):
-        raise ValueError(f"objective must be 'report' or 'measure', got {kind!r}")
+    if kind not in ("report", "measure", "worst"):
+        raise ValueError(f"objective must be 'report', 'measure' or 'worst', got {kind!r}")
     threshold = d.threshold(env_id) if kind == "report" else None
     if threshold is not None:
         return Objective("steps to threshold", f"steps to threshold ({threshold.text}; a seed that never met it: "
                          "the budget), IQM over seeds", "minimize", threshold, threshold.column)
     column, label = d.measure(env_id)
-    return at_budget_objective(column, label, "minimize" if d.lower_is_better(env_id) else "maximize", window)
+    direction = "minimize" if d.lower_is_better(env_id) else "maximize"
+    if kind == "worst":
+        return worst_objective(column, label, direction, window, stages)
+    return at_budget_objective(column, label, direction, window)
+
+
+def worst_objective(column: str, label: str, direction: str, window: int, stages, note: str = "") -> Objective:
+    """``column``'s worst at the ends of ``stages`` after the first (each seed's mean over its last
+    ``window`` episodes before each end), IQM over seeds."""
+    ends = tuple((s["episodes"], s["env_steps"]) for s in stages[1:])
+    if not ends:
+        raise ValueError("objective 'worst' needs at least two stages: it scores the stages after the first")
+    where = ", ".join(f"{e:,}" for e, _ in ends) if not ends[0][1] else ", ".join(f"{s:,} steps" for _, s in ends)
+    return Objective(f"worst {label}", f"worst {label} after the first stage (each seed's mean of its last {window} "
+                     f"episodes before {where}; the worst of these{note}), IQM over seeds", direction, None, column,
+                     window, ends)
 
 
 def at_budget_objective(column: str, label: str, direction: str, window: int, note: str = "") -> Objective:
