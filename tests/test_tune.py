@@ -143,7 +143,13 @@ def test_objective_worst_by_hand():
     assert obj.value(run) == pytest.approx(3)                  # IQM of 4: the middle two
     assert "6, 9, 12" in obj.text and "last 3 episodes" in obj.text
     assert obj.per_seed(stage(run, stages[2])).tolist() == [2, 3, 1, 6]
-    assert obj.per_seed(stage(run, stages[0])).isna().all()
+    first = obj.per_seed(stage(run, stages[0]))
+    assert first.index.tolist() == [0, 1, 2, 3] and first.dtype == float and first.isna().all()
+    # a run of 10 episodes has not reached the end at 12, though it holds a block ending at 10;
+    # a seed with no episode in any block scored (seed 4: 3 episodes) is NaN, not left out
+    ten = Run(Path("."), pd.concat([df[df["episode"] <= 10], frame([(4, e, 5, 9) for e in (1, 2, 3)])]),
+              {"run": {"env": "liquidation", "env_steps": 0, "episodes": 10}})
+    assert obj.per_seed(ten).fillna(-1).tolist() == [2, 3, 1, 6, -1]
     # a return (more is better) takes the lowest block
     df["return"] = -df["cost_ratio"]
     ret = Objective("worst return", "", "maximize", None, "return", 3, obj.stages)
@@ -154,7 +160,10 @@ def test_objective_worst_by_hand():
     # (the first end, 15 steps, not scored) seed 0 (5 steps an episode): episodes 4-6, 10-12 -> 2;
     # seed 1 (15): 1-2, 2-4 -> 5; seed 2 (25): 1, 1-2 -> 1; seed 3 (35): none, 1 -> 0 (the ends it has)
     assert steps.per_seed(ran).tolist() == [2, 5, 1, 0] and "30 steps, 60 steps" in steps.text
-    with pytest.raises(ValueError, match="at least two stages"):
+    two = objective("liquidation", "worst", window=3, stages=stages[2:])
+    assert two.name.startswith("worst ac_cost / U*") and two.text.endswith("(each seed's mean of its last 3 "
+                                                                           "episodes before 12; the worst of these), IQM over seeds")
+    with pytest.raises(ValueError, match="^objective 'worst' needs at least two stages"):
         objective("liquidation", "worst", window=3, stages=stages[:1])
 
 
