@@ -24,9 +24,11 @@ PRESETS = {
     # TD3 (agents/td3.py): the TD3 paper's settings (TD3Config's defaults), on either reward.
     "td3": {"shortfall": {}, "utility-ratio": UTILITY_RATIO},
     # Studies' presets are in tuned.json, each with its provenance: dgpq `tuned` (issue 27),
-    # `late` (scored on the late blocks) and `once` (`--slack once`, L_Q 2.25, eps1 0.0032: 1.082
+    # `late` (scored on the late blocks), `once` (`--slack once`, L_Q 2.25, eps1 0.0032: 1.082
     # U* over episodes 4,001-5,000 on seeds 2000-2003, 1.083 under Algorithm 1; both turn later,
-    # at ~9,800 and ~6,600). Every probe, its settings, seeds and result: docs/domains/liquidation.md.
+    # at ~9,800 and ~6,600) and `steady` (Algorithm 1, scored on the worst block after 1,000:
+    # L_Q 1.61, eps1 0.0023: 1.058 there, no block rising; turns at ~6,500-7,000). Every probe,
+    # its settings, seeds and result: docs/domains/liquidation.md.
     "dgpq": {
         # Tuned on the shortfall reward (docs/domains/liquidation.md says why): the state is
         # (trades left, shares left) -- in a random walk past returns predict nothing, so the
