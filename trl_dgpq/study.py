@@ -39,7 +39,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from trl_dgpq.analysis.objective import at_budget_objective, objective, stage, worst_objective
+from trl_dgpq.analysis.objective import at_budget_objective, covers, objective, stage, worst_objective
 from trl_dgpq.analysis.runs import load_run
 from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import classes, resolve_config, split_overrides
@@ -157,12 +157,6 @@ def stage_lengths(run: dict, fractions) -> list:
         if not out or lengths != out[-1]:
             out.append(lengths)
     return out
-
-
-def covers(config: dict, lengths: dict) -> bool:
-    run = config["run"]
-    return lengths["episodes"] <= run["episodes"] and (
-        not run["env_steps"] or lengths["env_steps"] <= run["env_steps"])
 
 
 def plain(value):

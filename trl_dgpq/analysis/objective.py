@@ -55,11 +55,11 @@ class Objective:
         ends each seed at the stage's episode (episodes differ in length: the fewest steps any
         seed ran would cut a seed with short episodes early)."""
         run.need(self.column)
-        df, ran = run.df, run.config["run"]
+        df = run.df
         seeds = sorted(df["seed"].unique())
         values = []
         for episodes, steps in self.stages:
-            if episodes > ran["episodes"] or (ran["env_steps"] and steps > ran["env_steps"]):
+            if not covers(run.config, dict(episodes=episodes, env_steps=steps)):
                 continue
             if steps:
                 values.append(at_budget(df, self.column, steps, self.window).reindex(seeds))
@@ -115,6 +115,13 @@ def at_budget_objective(column: str, label: str, direction: str, window: int, no
     seeds (``note``: said after the window, e.g. why this column)."""
     return Objective(f"{label} at budget", f"{label} at budget (mean of each seed's last {window} episodes{note}), "
                      "IQM over seeds", direction, None, column, window)
+
+
+def covers(config: dict, lengths: dict) -> bool:
+    """Whether a run of ``config`` is at least as long as ``lengths`` ({"episodes", "env_steps"})."""
+    run = config["run"]
+    return lengths["episodes"] <= run["episodes"] and (
+        not run["env_steps"] or lengths["env_steps"] <= run["env_steps"])
 
 
 def stage(run: Run, lengths: dict) -> Run:
