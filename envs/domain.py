@@ -85,9 +85,17 @@ class Domain:
     def analysis(self) -> Optional[ModuleType]:
         return self.module("analysis", optional=True)
 
-    def measure(self, env_id: Optional[str] = None) -> Tuple[str, str]:
-        """(CSV column, label) of what curves of this domain show (default: the return)."""
-        return getattr(self.analysis(), "MEASURE", ("return", "return per episode"))
+    def measure(self, env_id: Optional[str] = None, column: str = "") -> Tuple[str, str]:
+        """(CSV column, label) of what curves of this domain show (default: the return); with
+        ``column``, that one of its ``measures`` (ValueError naming them if it has no such one)."""
+        default = getattr(self.analysis(), "MEASURE", ("return", "return per episode"))
+        if not column or column == default[0]:
+            return default
+        others = dict(getattr(self.analysis(), "OTHER_MEASURES", {}))
+        if column not in others:
+            raise ValueError(f"{self.name} has no measure {column!r}: its measures are "
+                             f"{', '.join([default[0], *others])}")
+        return column, others[column]
 
     def format_measure(self, value: float, env_id: Optional[str] = None) -> str:
         """``value`` of ``measure`` as the domain writes it (``MEASURE_FORMAT``; default 4 digits)."""

@@ -65,7 +65,7 @@ def test_liquidations_claims_from_costs_paired_with_the_optimum():
     steady = pd.DataFrame([dict(seed=0, episode=e, ac_cost=1.0 + 0.2 + 0.02 * ((e - 1) // 500 - 2),
                                 optimal_ac_cost=1.0) for e in range(1, 3001)])
     d = claims({"liq-dgpq-tuned": run(steady)})[0]
-    assert d.verdict == "not reproduced" and d.ours == "1.05x, last 1,000 at 1.25 U* (3,000 episodes)"  # 1.26 / 1.20
+    assert d.verdict == "not reproduced" and d.ours == "1.050x, last 1,000 at 1.250 U* (3,000 episodes)"  # 1.26 / 1.20
     assert "DGPQ `tuned`" in d.claim
     flat = steady.assign(ac_cost=1.05)
     assert claims({"liq-dgpq-tuned": run(flat)})[0].verdict == "reproduced"
@@ -82,10 +82,19 @@ def test_liquidations_claims_from_costs_paired_with_the_optimum():
     # both bounds inclusive, at ratios that come out as the doubles nearest 1.02 and 1.10 (51 / 50, 55 / 50)
     rising = steady.assign(optimal_ac_cost=50.0, ac_cost=[50.0 if e <= 2000 else 51.0 for e in steady.episode])
     edge = claims({"liq-dgpq-late": run(rising)})[0]
-    assert edge.ours == "1.02x, last 1,000 at 1.02 U* (3,000 episodes)" and edge.verdict == "reproduced"
+    assert edge.ours == "1.020x, last 1,000 at 1.020 U* (3,000 episodes)" and edge.verdict == "reproduced"
     assert claims({"liq-dgpq-late": run(rising.assign(ac_cost=55.0))})[0].verdict == "reproduced"
     worse = rising.assign(ac_cost=[50.0 if e <= 2000 else 52.5 for e in rising.episode])   # 1.05x, the last at 1.05
     assert claims({"liq-dgpq-late": run(worse)})[0].verdict == "not reproduced"
+    # with the env's noise-free ratio the verdict is on it (the policy's expected cost), the paired beside it
+    frozen = worse.assign(noise_free_cost_ratio=1.08)
+    judged = claims({"liq-dgpq-late": run(frozen)})[0]
+    assert judged.verdict == "reproduced" and judged.ours == (
+        "without the price noise 1.000x, last 1,000 at 1.080 U*; paired with the optimum's path 1.050x, last 1,000 "
+        "at 1.050 U* (3,000 episodes)")
+    late_rise = frozen.assign(noise_free_cost_ratio=[1.08 if e <= 2000 else 1.11 for e in frozen.episode])
+    assert claims({"liq-dgpq-late": run(late_rise)})[0].verdict == "not reproduced"       # 1.028x
+    assert claims({"liq-dgpq-late": run(frozen.assign(noise_free_cost_ratio=1.11))})[0].verdict == "not reproduced"
     # the source and the claims' whole text
     assert edge.source == early.source == "this suite (issue 28's goal)"
     assert edge.claim == ("DGPQ `late` stops drifting: after episode 1,000 its worst block of 500 within 1.02x of its "

@@ -347,6 +347,8 @@ def test_impact_reward_by_hand_is_the_shortfall_without_its_price_noise_term():
             got.append(td["next", "reward"][:, 0])
             td = env.step_mdp(td)
         returns[reward] = sum(got)
+        # whatever the reward, the episode's noise-free ac_cost is the hand sum, on every path
+        assert td["noise_free_ac_cost"].tolist() == pytest.approx([sum(by_hand)] * 2, rel=1e-12)
         if reward == "impact":
             for step, cost in zip(got, by_hand):
                 assert step.tolist() == pytest.approx([-cost] * 2, rel=1e-12)
@@ -354,6 +356,46 @@ def test_impact_reward_by_hand_is_the_shortfall_without_its_price_noise_term():
     assert xi[0] != xi[1]
     assert (returns["shortfall"] - returns["impact"]).tolist() == pytest.approx(
         (math.sqrt(m.sigma2 * m.tau) * xi * 400).tolist(), rel=1e-9)
+    assert (td["noise_free_ac_cost"] - td["ac_cost"]).tolist() == pytest.approx(
+        (math.sqrt(m.sigma2 * m.tau) * xi * 400).tolist(), rel=1e-9)
+
+
+def test_noise_free_cost_ratio_is_one_for_the_optimum_and_has_the_cost_ratios_mean():
+    """The AC schedule's noise-free ac_cost is the same every episode, its expected ac_cost, and
+    its ratio is 1 exactly; TWAP's is the same every episode and is, by hand, its impact and
+    risk terms (n = X / N each trade, x_k = X (N - k) / N held after trade k) less the
+    optimum's, over U*; averaged over 400 seeds its cost_ratio agrees with that within the noise."""
+    opt = run_experiment(resolve_config(env="liquidation", agent="ac-optimal", seeds=[3, 4], episodes=3),
+                         progress=False)
+    assert opt.noise_free_cost_ratio.to_numpy() == pytest.approx([1.0] * 6, abs=1e-12)
+    assert opt.noise_free_ac_cost.to_numpy() == pytest.approx([U_STAR] * 6, rel=1e-4)   # U* up to rounding
+    assert opt.noise_free_ac_cost.nunique() == 1 and opt.ac_cost.nunique() == 6
+    env = LiquidationEnv(seeds=list(range(400)), shares=600_000)  # 10,000 a trade: whole shares
+    m, big_n, big_x, u_star = env.model, env.cfg.trades, env.cfg.shares, float(env.u_star)
+    n = big_x / big_n
+    held = [big_x * (big_n - k) / big_n for k in range(1, big_n + 1)]
+    by_hand = sum(n * (m.eps + m.eta / m.tau * n) + m.gamma * n * x + m.lam * m.sigma2 * m.tau * x * x for x in held)
+    optimum = float(env.path_cost(env.optimal_trades, torch.zeros(1, big_n, dtype=D))[0])
+    td = env.reset()
+    for k in range(big_n):
+        td = env.step(td.set("action", torch.full((400, 1), 1 / (big_n - k), dtype=D)))
+        td = env.step_mdp(td)
+    ratio = td["noise_free_cost_ratio"].numpy()
+    assert ratio == pytest.approx([1 + (by_hand - optimum) / u_star] * 400, rel=1e-9) and ratio[0] > 2
+    paired = td["cost_ratio"].numpy()
+    assert abs(paired.mean() - ratio[0]) < 3 * paired.std() / math.sqrt(400) and paired.std() > 0.1
+
+
+def test_a_checkpoint_from_before_noise_free_ac_cost_loads_with_it_where_it_is_known():
+    """Zero for a seed at its episode's start, NaN (not a wrong number) for one midway."""
+    env = LiquidationEnv(seeds=[0, 1])
+    td = env.reset()
+    env.step(td.set("action", torch.full((2, 1), 0.1, dtype=D)))
+    state = env.state_dict()
+    state["t"] = torch.tensor([0, 1])
+    fresh = LiquidationEnv(seeds=[0, 1])
+    fresh.load_state_dict({k: v for k, v in state.items() if k != "noise_free_ac_cost"})
+    assert fresh.noise_free_ac_cost[0].item() == 0.0 and math.isnan(fresh.noise_free_ac_cost[1].item())
 
 
 def test_impact_reward_has_the_shortfalls_mean_return_for_a_fixed_schedule():

@@ -167,6 +167,37 @@ def test_objective_worst_by_hand():
         objective("liquidation", "worst", window=3, stages=stages[:1])
 
 
+def test_a_study_scores_the_measure_named_and_keeps_it(tmp_path, capsys):
+    """--measure noise_free_cost_ratio on liquidation: its worst block by hand, not cost_ratio's;
+    the square's threshold is not used where a measure is named; a measure the domain lacks is
+    refused naming its measures; a study keeps its measure and records the column it scored."""
+    df = frame([(s, e, 5, 9.0) for s in range(2) for e in range(1, 7)])
+    df["noise_free_cost_ratio"] = [1, 1, 3, 1, 2, 2] + [1, 1, 1, 1, 4, 1]   # blocks 3-4, 5-6: 2, 2 | 1, 2.5
+    run = Run(Path("."), df, {"run": {"env": "liquidation", "env_steps": 0, "episodes": 6}})
+    stages = [dict(episodes=e, env_steps=0) for e in (2, 4, 6)]
+    obj = objective("liquidation", "worst", window=2, stages=stages, measure="noise_free_cost_ratio")
+    assert obj.column == "noise_free_cost_ratio" and obj.direction == "minimize"
+    assert obj.per_seed(run).tolist() == [2.0, 2.5] and obj.name == "worst noise-free ac_cost / U*"
+    assert objective("liquidation", measure="cost_ratio").column == "cost_ratio"
+    square = objective("square", "report", measure="steps")      # named: at the budget, not steps to threshold
+    assert square.threshold is None and square.column == "steps" and square.direction == "minimize"
+    assert objective("square", "report").threshold is not None
+    with pytest.raises(ValueError, match=r"^square has no measure 'cost_ratio': its measures are steps$"):
+        objective("square", measure="cost_ratio")
+    with pytest.raises(ValueError, match="its measures are cost_ratio, noise_free_cost_ratio$"):
+        objective("liquidation", measure="ac_cost")
+    out = tmp_path / "study"
+    from trl_dgpq.study import Study
+    study = Study.open(out, None, {"env": "liquidation", "agent": "dgpq", "episodes": "12"},
+                       {"measure": "noise_free_cost_ratio"})
+    assert study.request["scored"] == "noise_free_cost_ratio" == study.objective.column
+    with pytest.raises(ValueError, match="keeps its measure noise_free_cost_ratio"):
+        Study.open(out, None, {}, {"measure": "cost_ratio"})
+    with pytest.raises(SystemExit) as exc:
+        tune.main([*TINY, "--out", str(tmp_path / "never"), "--measure", "cost_ratio"])
+    assert exc.value.code == 2 and "square has no measure 'cost_ratio'" in capsys.readouterr().err
+
+
 def test_a_worst_study_needs_two_stages(capsys):
     with pytest.raises(SystemExit) as exc:
         tune.main([*TINY, "--stages", "1", "--out", "unused", "--objective", "worst"])

@@ -78,6 +78,10 @@ class TuneConfig:
     window: int = setting(10, "episodes at the end of a trial's budget that the measure is averaged over (a "
                               "domain without a threshold, or --objective measure): more scores how a learner "
                               "ends rather than a lucky stretch", within="[1, inf)")
+    measure: str = setting("", "the episodes.csv column trials are scored by, one of the domain's measures "
+                               "(default: its own, what report.py shows), e.g. liquidation's "
+                               "noise_free_cost_ratio: the expected cost of the trades played, without the "
+                               "price noise that moves its cost_ratio from block to block")
     first: str = setting("preset", "the study's first trial: 'preset', the base preset's own values of the searched "
                                    "settings (those inside their ranges), or 'sampled', as TPE draws it",
                          choices=("preset", "sampled"))
@@ -87,7 +91,7 @@ class TuneConfig:
                                           "state_scale=0.25:4 searches each nonzero weight of the base preset's "
                                           "metric times its own factor in that range")
 
-    FIXED = ("sampler_seed", "stages", "prune_after", "objective", "search", "window", "first")  # kept by the study from its first run
+    FIXED = ("sampler_seed", "stages", "prune_after", "objective", "search", "window", "first", "measure")  # kept by the study from its first run
 
     def cross_check(self) -> None:
         if list(self.stages) != sorted(set(self.stages)) or self.stages[-1] != 1:
@@ -181,7 +185,8 @@ class Study:
         self.tune = from_dict(TuneConfig, request["tune"])
         self.config = request["config"]
         self.stages = stage_lengths(self.config["run"], self.tune.stages)
-        self.objective = objective(self.config["run"]["env"], self.tune.objective, self.tune.window, self.stages)
+        self.objective = objective(self.config["run"]["env"], self.tune.objective, self.tune.window, self.stages,
+                                   self.tune.measure)
         # the column its trials were scored on, kept: were the env's measure to change, new trials
         # would otherwise be scored on another scale than the old ones and compared with them
         scored = request.setdefault("scored", self.objective.column)

@@ -20,6 +20,13 @@ estimate of E[ac_cost] / U* paired with the optimum on the same prices. The pric
 moves a single ac_cost by ~2.5 U* (s.d.), far more than policies differ; it moves the
 difference to the optimum on the same path far less, so means of ``cost_ratio`` over a
 few hundred episodes separate policies that means of ``ac_cost`` over thousands do not.
+``noise_free_ac_cost``: the ac_cost of the episode's trades had the price not moved (its
+impact and risk terms, what the "impact" reward pays), and ``noise_free_cost_ratio`` = 1 +
+(that - the AC schedule's expected ac_cost) / U*. ac_cost = noise_free_ac_cost - sigma sqrt(tau)
+sum_k xi_k x_k, and x_k is held before xi_k is drawn, so the two have the same mean for every
+agent: E[ac_cost] / U* is the mean of either ratio. For an agent that does not look at prices
+(DGPQ on (trades left, shares left)) the noise-free ratio is exactly the expected cost of the
+policy it played, with no price noise at all: a block's mean moves only when the policy does.
 
 Rewards:
   "shortfall" (default): r_k = -[n_k (S_0 - exec_k) + lambda sigma^2 tau x_k^2] / reward_scale,
@@ -111,9 +118,11 @@ class LiquidationEnv(SeedBatchedEnv):
 
     Config = LiquidationConfig
     action_hint = "liquidation: action_levels=0 gives a continuous sell fraction, >= 2 discrete levels"
-    episode_info = ("implementation_shortfall", "ac_cost", "optimal_ac_cost", "cost_ratio")
+    episode_info = ("implementation_shortfall", "ac_cost", "optimal_ac_cost", "cost_ratio", "noise_free_ac_cost",
+                    "noise_free_cost_ratio")
     _streams = (("price_rng", PRICE_STREAM),)  # keyed by episode (uniform_at): its counter never moves
-    _state_names = ("x", "price", "returns", "shortfall", "ac_cost", "episode", "ou", "xi", "optimal_ac_cost")
+    _state_names = ("x", "price", "returns", "shortfall", "ac_cost", "episode", "ou", "xi", "optimal_ac_cost",
+                    "noise_free_ac_cost")
 
     def __init__(self, seeds=(0,), cfg: LiquidationConfig | None = None, device="cpu", **overrides):
         super().__init__(seeds, cfg, device, **overrides)
@@ -129,8 +138,11 @@ class LiquidationEnv(SeedBatchedEnv):
         self.ou = torch.zeros(S, **f64)
         self.xi = torch.zeros(S, cfg.trades, **f64)  # the current episode's price noise
         self.optimal_ac_cost = torch.zeros(S, **f64)  # the AC schedule's ac_cost on that noise
+        self.noise_free_ac_cost = torch.zeros(S, **f64)  # ac_cost without the price noise's term
         self.u_star = self.model.utility()
         self.optimal_trades = self._schedule_trades(self.model.sell_fractions())
+        # the AC schedule's expected ac_cost (rounded as trades are: U* up to the rounding)
+        self.optimal_noise_free = self.path_cost(self.optimal_trades, torch.zeros(1, cfg.trades, **f64))[0]
         self.levels = torch.linspace(0, 1, cfg.action_levels, **f64) if cfg.action_levels else None
 
     @classmethod
@@ -144,6 +156,8 @@ class LiquidationEnv(SeedBatchedEnv):
             ac_cost=Unbounded(shape=(S,), **f64),
             optimal_ac_cost=Unbounded(shape=(S,), **f64),
             cost_ratio=Unbounded(shape=(S,), **f64),
+            noise_free_ac_cost=Unbounded(shape=(S,), **f64),
+            noise_free_cost_ratio=Unbounded(shape=(S,), **f64),
             shape=(S,), device=device)
         if cfg.action_levels:
             action = Categorical(cfg.action_levels, shape=(S,), device=device)
@@ -162,12 +176,14 @@ class LiquidationEnv(SeedBatchedEnv):
         return self._td(observation=obs, trades_left=left, shares_left=self.x.clone(),
                         implementation_shortfall=self.shortfall.clone(), ac_cost=self.ac_cost.clone(),
                         optimal_ac_cost=self.optimal_ac_cost.clone(),
-                        cost_ratio=1 + (self.ac_cost - self.optimal_ac_cost) / self.u_star)
+                        cost_ratio=1 + (self.ac_cost - self.optimal_ac_cost) / self.u_star,
+                        noise_free_ac_cost=self.noise_free_ac_cost.clone(),
+                        noise_free_cost_ratio=1 + (self.noise_free_ac_cost - self.optimal_noise_free) / self.u_star)
 
     def _initial(self, mask):
         self.x[mask] = float(self.cfg.shares)
         self.price[mask] = self.cfg.start_price
-        for name in ("returns", "shortfall", "ac_cost", "ou"):
+        for name in ("returns", "shortfall", "ac_cost", "ou", "noise_free_ac_cost"):
             getattr(self, name)[mask] = 0.0
         self.episode += mask
         # xi of (seed, episode): draw ``episode`` of the seed's price stream, whatever happened before.
@@ -179,6 +195,8 @@ class LiquidationEnv(SeedBatchedEnv):
     def load_state_dict(self, state: dict, strict: bool = True) -> None:
         if "optimal_ac_cost" not in state:  # a checkpoint from before the column: its episode's xi says it
             state = {**state, "optimal_ac_cost": self.path_cost(self.optimal_trades, state["xi"])}
+        if "noise_free_ac_cost" not in state:  # from before it: known at an episode's start only
+            state = {**state, "noise_free_ac_cost": torch.where(state["t"] == 0, 0.0, float("nan")).to(self.x)}
         super().load_state_dict(state, strict)
 
     def _shares_to_sell(self, fraction, x, last):
@@ -225,10 +243,10 @@ class LiquidationEnv(SeedBatchedEnv):
         trade_cost = n * (cfg.start_price - exec_price)
         x_new = x - n
         risk = m.lam * m.sigma2 * m.tau * x_new * x_new
+        impact = n * (m.eps * torch.sign(n) + (m.eta / m.tau) * n) + m.gamma * n * x_new
         if cfg.reward == "shortfall":
             reward = -(trade_cost + risk) / cfg.reward_scale
         elif cfg.reward == "impact":
-            impact = n * (m.eps * torch.sign(n) + (m.eta / m.tau) * n) + m.gamma * n * x_new
             reward = -(impact + risk) / cfg.reward_scale
         else:
             u_prev, u_now = m.utility(x).abs(), m.utility(x_new).abs()
@@ -240,6 +258,7 @@ class LiquidationEnv(SeedBatchedEnv):
         self.x.copy_(x_new)
         self.shortfall.add_(trade_cost)
         self.ac_cost.add_(trade_cost + risk)
+        self.noise_free_ac_cost.add_(impact + risk)
         return self._observation(self.t + 1), reward, x_new <= 0  # (the base advances t after this)
 
 

@@ -77,21 +77,21 @@ class Objective:
         return iqm_point(self.per_seed(run))
 
 
-def objective(env: str, kind: str = "report", window: int = WINDOW, stages=()) -> Objective:
+def objective(env: str, kind: str = "report", window: int = WINDOW, stages=(), measure: str = "") -> Objective:
     """``env``'s objective: ``kind`` "report" as the module says, "measure" the measure at the
     budget even where the domain has a threshold, "worst" the worst of the measure at the ends
-    of ``stages`` ([{"episodes", "env_steps"}], a study's) after the first; the measure averaged
-    over each seed's last ``window`` episodes (more: a study that scores how a learner ends, not
-    one lucky stretch)."""
+    of ``stages`` ([{"episodes", "env_steps"}], a study's) after the first; the measure (the
+    domain's, or its other one named ``measure``) averaged over each seed's last ``window``
+    episodes (more: a study that scores how a learner ends, not one lucky stretch)."""
     from trl_dgpq.envs import domain, split_name
     d, env_id = domain(env), split_name(env)[1]
     if kind not in ("report", "measure", "worst"):
         raise ValueError(f"objective must be 'report', 'measure' or 'worst', got {kind!r}")
-    threshold = d.threshold(env_id) if kind == "report" else None
+    column, label = d.measure(env_id, measure)
+    threshold = d.threshold(env_id) if kind == "report" and not measure else None
     if threshold is not None:
         return Objective("steps to threshold", f"steps to threshold ({threshold.text}; a seed that never met it: "
                          "the budget), IQM over seeds", "minimize", threshold, threshold.column)
-    column, label = d.measure(env_id)
     direction = "minimize" if d.lower_is_better(env_id) else "maximize"
     if kind == "worst":
         return worst_objective(column, label, direction, window, stages)
