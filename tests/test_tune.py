@@ -186,6 +186,15 @@ def test_a_study_scores_the_measure_named_and_keeps_it(tmp_path, capsys):
         objective("square", measure="cost_ratio")
     with pytest.raises(ValueError, match="its measures are cost_ratio, noise_free_cost_ratio$"):
         objective("liquidation", measure="ac_cost")
+    # a domain without a MEASURE of its own: the return, more is better; naming it scores it at the budget
+    pendulum = objective("gym:Pendulum-v1", "report", measure="return")
+    assert (pendulum.column, pendulum.name, pendulum.direction) == ("return", "return per episode at budget", "maximize")
+    assert objective("gym:CartPole-v1", "report", measure="return").threshold is None
+    cartpole = objective("gym:CartPole-v1", "report")
+    assert cartpole.threshold.value == 195 and cartpole.name == "steps to threshold" and cartpole.text == (
+        "steps to threshold (mean return >= 195 over 10 episodes; a seed that never met it: the budget), IQM over seeds")
+    with pytest.raises(ValueError, match=r"^gym has no measure 'steps': its measures are return$"):
+        objective("gym:CartPole-v1", measure="steps")
     out = tmp_path / "study"
     from trl_dgpq.study import Study
     study = Study.open(out, None, {"env": "liquidation", "agent": "dgpq", "episodes": "12"},
