@@ -76,6 +76,7 @@ def test_liquidations_claims_from_costs_paired_with_the_optimum():
     assert [(c.claim.split("`")[1], c.verdict) for c in both] == [("tuned", "not reproduced"), ("late", "reproduced"),
                                                                   ("late", "not reproduced")]
     assert [c.claim.split(" stops")[0] for c in both] == ["DGPQ `tuned`", "DGPQ `late`", "DGPQ `late` with eps1 0.002"]
+    assert [c.claim.split(" stops")[0] for c in claims({"liq-dgpq-flat": run(flat)})] == ["DGPQ `flat`"]
     # the goal's two bounds: a flat 1.11 fails the last-1,000 bound alone; 1.10 passes it
     assert claims({"liq-dgpq-late": run(steady.assign(ac_cost=1.11))})[0].verdict == "not reproduced"
     assert claims({"liq-dgpq-late": run(steady.assign(ac_cost=1.10))})[0].verdict == "reproduced"

@@ -228,6 +228,8 @@ REPRODUCE = [
     # late with eps1 0.002: its slack summed over ~20 trades under 6 % of U*; late's own 0.0058 turns
     # at episode ~7,000 (docs/domains/liquidation.md, "The slack of eps1")
     ("liq-dgpq-late-eps1", dict(agent="dgpq", preset="late", eps1=0.002)),
+    # scored on the worst block without the price noise (issue 28): flat from episode ~500 to 11,000
+    ("liq-dgpq-flat", dict(agent="dgpq", preset="flat")),
     ("liq-ddpg-shortfall", dict(agent="ddpg", preset="shortfall"), DDPG_SCALES),
     ("liq-ddpg-utility-ratio", dict(agent="ddpg", preset="utility-ratio"), DDPG_SCALES),
     ("liq-ddpg-course", dict(agent="ddpg", preset="course"), DDPG_SCALES),
@@ -250,7 +252,7 @@ U_STAR = 704_723   # the AC optimum's ac_cost with the defaults, $ (SPEC 3.2's c
 
 
 def claims(runs: dict) -> list:
-    """The model's closed form and TWAP against it (AC00), and issue 28's goal for DGPQ's tuned and late presets."""
+    """The model's closed form and TWAP against it (AC00), and issue 28's goal for DGPQ's tuned, late and flat presets."""
     from trl_dgpq.analysis.claims import Claim, within
     out = []
     if "liq-ac-optimal" in runs:
@@ -265,7 +267,7 @@ def claims(runs: dict) -> list:
                              "reproduced" if {within(cost, 4.3, 1.1), within(short, 0.48, 1.1)} == {"reproduced"}
                              else "not reproduced"))
     for name, preset, change in (("liq-dgpq-tuned", "tuned", ""), ("liq-dgpq-late", "late", ""),
-                                 ("liq-dgpq-late-eps1", "late", " with eps1 0.002")):
+                                 ("liq-dgpq-late-eps1", "late", " with eps1 0.002"), ("liq-dgpq-flat", "flat", "")):
         if name in runs:
             out.append(drift_claim(preset, runs[name].df, change))
     return out
