@@ -87,7 +87,8 @@ class Domain:
 
     def measure(self, env_id: Optional[str] = None, column: str = "") -> Tuple[str, str]:
         """(CSV column, label) of what curves of this domain show (default: the return); with
-        ``column``, that one of its ``measures`` (ValueError naming them if it has no such one)."""
+        ``column``, that one of its ``OTHER_MEASURES`` (same direction; ValueError naming them if it
+        has no such one)."""
         default = getattr(self.analysis(), "MEASURE", ("return", "return per episode"))
         if not column or column == default[0]:
             return default

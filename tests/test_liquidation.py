@@ -284,6 +284,40 @@ def test_drift_is_the_paired_cost_ratio_per_block_by_hand():
     assert drift(own, block=2, settle=2, last=2)["blocks"] == pytest.approx([2.0, 1.0, 2.0])
 
 
+def test_noise_free_drift_is_the_mean_noise_free_ratio_per_block_by_hand():
+    """Two seeds, 3 blocks of 2 episodes: block means 1.1, 1.15, 1.2 (an old checkpoint's NaN left
+    out of its block), the last 2 episodes 1.2, the worst after the first block 1.2 / 1.15; the
+    defaults are blocks of 500, the first 1,000 episodes left out, the last 1,000; None without
+    the column or with nothing in it."""
+    import numpy as np
+    import pandas as pd
+    from trl_dgpq.envs.liquidation.analysis import noise_free_drift
+    df = pd.DataFrame(dict(seed=[0] * 6 + [1] * 6, episode=list(range(1, 7)) * 2,
+                           noise_free_cost_ratio=[1.2, 1.0, 1.1, 1.1, 1.0, 1.4] + [1.1, 1.1, 1.0, 1.3, 1.3, 1.1]))
+    got = noise_free_drift(df, block=2, settle=2, last=2)
+    assert got["blocks"] == pytest.approx([1.1, 1.125, 1.2]) and got["last"] == pytest.approx(1.2)
+    assert got["worst_over_best"] == pytest.approx(1.2 / 1.125)
+    assert math.isnan(noise_free_drift(df, block=2, settle=6, last=2)["worst_over_best"])
+    assert noise_free_drift(df.drop(columns="noise_free_cost_ratio")) is None
+    assert noise_free_drift(df.assign(noise_free_cost_ratio=np.nan)) is None
+    # a run resumed after the column arrived: judged only if every episode after `settle` has it
+    # (an early gap, from before the column, is left out of its block)
+    resumed = df.assign(noise_free_cost_ratio=[np.nan, 1.0, 1.0, 1.0, 1.0, 1.0, np.nan, 1.2, 1.1, 1.1, 1.1, 1.1])
+    assert noise_free_drift(resumed, block=2, settle=2, last=2)["blocks"] == pytest.approx([1.1, 1.05, 1.05])
+    late = resumed.assign(noise_free_cost_ratio=resumed.noise_free_cost_ratio.where(resumed.episode != 3))
+    assert noise_free_drift(late, block=2, settle=2, last=2) is None
+    assert noise_free_drift(late, block=2, settle=4, last=2) is not None   # episode 3 not weighed
+    e = np.arange(1, 3001)
+    shift = (e > 2500) / 10 - ((e > 1000) & (e <= 1500)) / 20 - (e <= 1000) / 5   # block 3 the best after 1,000
+    long = pd.DataFrame(dict(seed=0, episode=e, noise_free_cost_ratio=1 + (e % 7) / 100 + shift))
+    got = noise_free_drift(long)
+    means = [float(np.mean(1 + (e[k * 500:(k + 1) * 500] % 7) / 100 + (k == 5) / 10 - (k == 2) / 20 - (k < 2) / 5))
+             for k in range(6)]
+    assert got["blocks"] == pytest.approx(means, rel=1e-12) and len(got["blocks"]) == 6
+    assert got["last"] == pytest.approx(float(np.mean(long.noise_free_cost_ratio[2000:])), rel=1e-12)
+    assert got["worst_over_best"] == pytest.approx(max(means[2:]) / min(means[2:]), rel=1e-12)
+
+
 def test_cost_ratio_pairs_each_episode_with_the_ac_optimum_on_its_prices():
     """optimal_ac_cost is what the ac-optimal agent pays on the same (seed, episode), whatever
     the other agent did before (random sells at random speeds: its episodes differ in length),

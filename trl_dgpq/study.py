@@ -76,10 +76,11 @@ class TuneConfig:
                                        "episodes scores the worst block of 500 after the first 1,000)",
                              choices=("report", "measure", "worst"))
     window: int = setting(10, "episodes at the end of a trial's budget that the measure is averaged over (a "
-                              "domain without a threshold, or --objective measure): more scores how a learner "
+                              "domain without a threshold, --objective measure or --measure): more scores how a learner "
                               "ends rather than a lucky stretch", within="[1, inf)")
     measure: str = setting("", "the episodes.csv column trials are scored by, one of the domain's measures "
-                               "(default: its own, what report.py shows), e.g. liquidation's "
+                               "(default: its own, what report.py shows); a named one is scored at the "
+                               "budget (or by --objective worst), never by a threshold, e.g. liquidation's "
                                "noise_free_cost_ratio: the expected cost of the trades played, without the "
                                "price noise that moves its cost_ratio from block to block")
     first: str = setting("preset", "the study's first trial: 'preset', the base preset's own values of the searched "

@@ -23,10 +23,13 @@ few hundred episodes separate policies that means of ``ac_cost`` over thousands 
 ``noise_free_ac_cost``: the ac_cost of the episode's trades had the price not moved (its
 impact and risk terms, what the "impact" reward pays), and ``noise_free_cost_ratio`` = 1 +
 (that - the AC schedule's expected ac_cost) / U*. ac_cost = noise_free_ac_cost - sigma sqrt(tau)
-sum_k xi_k x_k, and x_k is held before xi_k is drawn, so the two have the same mean for every
-agent: E[ac_cost] / U* is the mean of either ratio. For an agent that does not look at prices
-(DGPQ on (trades left, shares left)) the noise-free ratio is exactly the expected cost of the
-policy it played, with no price noise at all: a block's mean moves only when the policy does.
+sum_k xi_k x_k, and x_k is held before xi_k is revealed (xi_k first moves the price after trade
+k), so the two have the same mean for every agent that does not read the episode's
+``optimal_ac_cost`` or ``cost_ratio`` (which know its whole path): E[ac_cost] / U* is the mean of
+either ratio. For an agent whose trades never depend on prices (DGPQ with the "impact" reward on
+a state without the log-returns: presets ``steady``, ``flat``) the noise-free ratio is exactly
+the expected cost of the trades it played, with no price noise at all: a block's mean moves
+only when the policy does.
 
 Rewards:
   "shortfall" (default): r_k = -[n_k (S_0 - exec_k) + lambda sigma^2 tau x_k^2] / reward_scale,

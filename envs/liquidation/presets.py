@@ -31,7 +31,7 @@ PRESETS = {
     # (11 levels, Algorithm 1, scored on the worst noise-free block: L_Q 1.91, sigma_tol2 0.0028,
     # eps1 0.00039, lengthscale 0.14: learnt within 500 episodes, every block after 1,000 within
     # 0.08 % of the best, 1.047 U* over episodes 4,001-5,000 on seeds 2000-2003; no turn in
-    # 11,000 episodes: every block within 0.12 % of the best). Every probe,
+    # 11,000 episodes: every block after 1,000 within 0.12 % of the best). Every probe,
     # its settings, seeds and result: docs/domains/liquidation.md.
     "dgpq": {
         # Tuned on the shortfall reward (docs/domains/liquidation.md says why): the state is
