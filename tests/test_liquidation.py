@@ -307,6 +307,10 @@ def test_noise_free_drift_is_the_mean_noise_free_ratio_per_block_by_hand():
     late = resumed.assign(noise_free_cost_ratio=resumed.noise_free_cost_ratio.where(resumed.episode != 3))
     assert noise_free_drift(late, block=2, settle=2, last=2) is None
     assert noise_free_drift(late, block=2, settle=4, last=2) is not None   # episode 3 not weighed
+    edge = resumed.assign(noise_free_cost_ratio=resumed.noise_free_cost_ratio.where(resumed.episode != 2))
+    assert noise_free_drift(edge, block=2, settle=2, last=2) is not None   # episode 2 is `settle`'s own
+    four = resumed.assign(noise_free_cost_ratio=resumed.noise_free_cost_ratio.where(resumed.episode != 4))
+    assert noise_free_drift(four, block=2, settle=6, last=2) is not None   # the last 2 are 5 and 6
     e = np.arange(1, 3001)
     shift = (e > 2500) / 10 - ((e > 1000) & (e <= 1500)) / 20 - (e <= 1000) / 5   # block 3 the best after 1,000
     long = pd.DataFrame(dict(seed=0, episode=e, noise_free_cost_ratio=1 + (e % 7) / 100 + shift))
@@ -316,6 +320,11 @@ def test_noise_free_drift_is_the_mean_noise_free_ratio_per_block_by_hand():
     assert got["blocks"] == pytest.approx(means, rel=1e-12) and len(got["blocks"]) == 6
     assert got["last"] == pytest.approx(float(np.mean(long.noise_free_cost_ratio[2000:])), rel=1e-12)
     assert got["worst_over_best"] == pytest.approx(max(means[2:]) / min(means[2:]), rel=1e-12)
+    # drift's defaults are the same: the paired ratio over an optimum of 1 is the mean
+    from trl_dgpq.envs.liquidation.analysis import drift
+    paired = drift(long.assign(ac_cost=long.noise_free_cost_ratio, optimal_ac_cost=1.0))
+    assert paired["blocks"] == pytest.approx(means, rel=1e-12) and paired["last"] == pytest.approx(got["last"])
+    assert paired["worst_over_best"] == pytest.approx(got["worst_over_best"], rel=1e-12)
 
 
 def test_cost_ratio_pairs_each_episode_with_the_ac_optimum_on_its_prices():
