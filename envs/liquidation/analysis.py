@@ -330,8 +330,9 @@ def drift(df, ref=None, block: int = 500, settle: int = 1000, last: int = 1000) 
 
 def noise_free_drift(df, block: int = 500, settle: int = 1000, last: int = 1000) -> dict:
     """``drift`` on the env's ``noise_free_cost_ratio`` (None for a run from before the column):
-    the mean per block of the expected ac_cost / U* of the trades played. For a learner that does
-    not look at prices (DGPQ on (trades left, shares left)) it has no price noise, so a block
+    the mean per block of the expected ac_cost / U* of the trades played. For a learner whose
+    trades never depend on prices (DGPQ on `steady`'s or `flat`'s reward and state) it has no
+    price noise, so a block
     differs from another only where the policy does: a frozen policy's blocks are equal, where
     the paired blocks still move by the noise (~0.7 % a block of 500 over 4 seeds, issue 28)."""
     if "noise_free_cost_ratio" not in df:
@@ -392,10 +393,11 @@ if __name__ == "__main__":   # python -m trl_dgpq.envs.liquidation.analysis RUN 
     import sys
 
     import pandas as pd
-    got = drift(*(pd.read_csv(Path(p) / "episodes.csv") for p in sys.argv[1:3]))  # (a run without optimal_ac_cost)
+    rows, *ref = (pd.read_csv(Path(p) / "episodes.csv") for p in sys.argv[1:3])  # (a run without optimal_ac_cost)
+    got = drift(rows, *ref)
     print("ac_cost / optimum per 500 episodes:", " ".join(f"{r:.2f}" for r in got["blocks"]))
     print(f"last 1,000: {got['last']:.3f}; worst / best after 1,000: {got['worst_over_best']:.3f}")
-    exact = noise_free_drift(pd.read_csv(Path(sys.argv[1]) / "episodes.csv"))
+    exact = noise_free_drift(rows)
     if exact is not None:
         print("noise-free (the trades' expected ac_cost) / U* per 500:", " ".join(f"{r:.4f}" for r in exact["blocks"]))
         print(f"last 1,000: {exact['last']:.4f}; worst / best after 1,000: {exact['worst_over_best']:.4f}")

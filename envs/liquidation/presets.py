@@ -26,7 +26,7 @@ PRESETS = {
     # Studies' presets are in tuned.json, each with its provenance: dgpq `tuned` (issue 27),
     # `late` (scored on the late blocks), `once` (`--slack once`, L_Q 2.25, eps1 0.0032: 1.082
     # U* over episodes 4,001-5,000 on seeds 2000-2003, 1.083 under Algorithm 1; both turn later,
-    # at ~9,800 and ~6,600) and `steady` (Algorithm 1, scored on the worst block after 1,000:
+    # at ~9,800 and ~6,600), `steady` (Algorithm 1, scored on the worst block after 1,000:
     # L_Q 1.61, eps1 0.0023: 1.058 there, no block rising; turns at ~6,500-7,000) and `flat`
     # (11 levels, Algorithm 1, scored on the worst noise-free block: L_Q 1.91, sigma_tol2 0.0028,
     # eps1 0.00039, lengthscale 0.14: learnt within 500 episodes, every block after 1,000 within
