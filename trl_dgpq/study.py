@@ -45,12 +45,14 @@ from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import classes, resolve_config, split_overrides
 from trl_dgpq.config import find_leaf, from_dict, setting, to_dict
 from trl_dgpq.presets import check_preset_name, preset_overrides, tuned_name, write_tuned
-from trl_dgpq.tuning import (TUNING_SEEDS, Factors, check_tuning_seeds, first_params, parse_range, search_space,
-                             suggest, with_ranges)
+from trl_dgpq.selection import check_selection_seeds
+from trl_dgpq.tuning import (TUNING_SEEDS, VALIDATION_SEEDS, Factors, check_tuning_seeds, first_params, parse_range,
+                             search_space, suggest, with_ranges)
 
 HOST = socket.gethostname()
 KEEP = (runner.CONFIG, runner.STATUS, runner.EPISODES)  # what an ended trial's folder keeps
 DEFAULT_SEEDS = f"{TUNING_SEEDS.start}-{TUNING_SEEDS.stop - 1}"
+DEFAULT_VALIDATION_SEEDS = f"{VALIDATION_SEEDS.start}-{VALIDATION_SEEDS.stop - 1}"
 UNMARKED_S = 60  # a running trial without its process's mark this long after it started: that process is gone
 
 
@@ -487,9 +489,9 @@ class Study:
         return results
 
     def validation_seeds(self, seeds) -> list:
-        """``seeds`` sorted, once checked: tuning seeds, none of the study's own (ValueError)."""
+        """``seeds`` sorted, once checked: no reporting seed, none of the study's own (ValueError)."""
         seeds = sorted(set(seeds))
-        check_tuning_seeds(seeds)
+        check_selection_seeds(seeds, "validation seeds", DEFAULT_VALIDATION_SEEDS)
         own = self.config["run"]["seeds"]
         shared = sorted(set(seeds) & set(own))
         if shared:

@@ -17,23 +17,20 @@ import math
 from dataclasses import dataclass
 from typing import Any, Tuple
 
+from trl_dgpq.selection import REPORTING, check_selection_seeds
+
 # Seeds reports are drawn from: configs/compare.toml (0-9, make compare), reproduce's scales
 # (0..N-1, N <= 10), RunConfig's default (0-7). Tuning on them would report the seeds the settings
-# were chosen on, so a study refuses them (tests/test_tune.py checks these files stay inside).
-REPORTING_SEEDS = range(0, 100)
+# were chosen on, so a study refuses them (trl_dgpq/selection.py holds the rule; tests/test_tune.py
+# checks these files stay inside).
+REPORTING_SEEDS = REPORTING
 TUNING_SEEDS = range(1000, 1005)  # tune's default seeds
+VALIDATION_SEEDS = range(1005, 1015)  # tune's default --validation-seeds
 
 
 def check_tuning_seeds(seeds) -> None:
     """ValueError (one line) if any of ``seeds`` is a reporting seed."""
-    shared = sorted(set(seeds) & set(REPORTING_SEEDS))
-    if shared:
-        r = REPORTING_SEEDS
-        first = ", ".join(map(str, shared[:3]))
-        listed = shared if len(shared) <= 6 else f"[{first}, ..., {shared[-1]}] ({len(shared)})"
-        raise ValueError(f"tuning seeds {listed} are reporting seeds ({r.start}-{r.stop - 1}: reports and make "
-                         f"compare use them): tune on seeds from {r.stop} up, e.g. the default --seeds "
-                         f"{TUNING_SEEDS.start}-{TUNING_SEEDS.stop - 1}")
+    check_selection_seeds(seeds, "tuning seeds", f"{TUNING_SEEDS.start}-{TUNING_SEEDS.stop - 1}")
 
 
 @dataclass(frozen=True)

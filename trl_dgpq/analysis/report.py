@@ -141,13 +141,27 @@ def default_labels(runs) -> list:
             for k, run in zip(keys, runs)]
 
 
-def report(runs, labels, out: Path, budget=None, window: int = WINDOW) -> tuple:
+def reportable(run) -> None:
+    """SelectionSeedsError (one line) if ``run`` may not be reported on (``selection.py``): its
+    seeds, those of its config and those its episodes.csv holds, include one its preset was
+    chosen on or one outside 0-99. A run without a config is not checked."""
+    from trl_dgpq.selection import check_reportable
+    if run.config is None:
+        return
+    seeds = set(run.config["run"].get("seeds") or ()) | {int(s) for s in run.df["seed"].unique()}
+    check_reportable({**run.config, "run": {**run.config["run"], "seeds": sorted(seeds)}}, str(run.path))
+
+
+def report(runs, labels, out: Path, budget=None, window: int = WINDOW, check=None) -> tuple:
     """Figures and the markdown table; returns (written paths, markdown text). ``labels``:
-    one per run, or None for each run's agent and preset."""
+    one per run, or None for each run's agent and preset. ``check``: called with each loaded
+    run before anything is written (it raises to refuse one, e.g. ``reportable``)."""
     import matplotlib.pyplot as plt
 
     from .figures import save
     loaded = [load_run(r) for r in runs]
+    for run in loaded if check is not None else ():
+        check(run)
     labels = labels or default_labels(loaded)
     groups = {}
     for run, label in zip(loaded, labels):

@@ -7,6 +7,11 @@ A RUN is a run folder (``train.py --out``) or an experiment folder of a sweep
 grouped by env. For each env, ``compare-<env>.png`` plots the env's measure against
 environment steps and ``compare.md`` holds one table: steps to the domain's threshold
 and performance at a budget (``trl_dgpq/analysis/report.py`` says how each is counted).
+
+A run on seeds its preset was chosen on (a study's tuning or validation seeds, in the
+preset's provenance) or on seeds outside 0-99 is refused before anything is written:
+seeds that chose anything are never reported on. ``--unpublished`` reports on any seeds
+(a look at a study's trials, say); nothing it writes may be published.
 """
 from __future__ import annotations
 
@@ -14,7 +19,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from trl_dgpq.analysis.report import WINDOW, report
+from trl_dgpq.analysis.report import WINDOW, report, reportable
 from trl_dgpq.commands import guarded, prog
 
 
@@ -26,6 +31,9 @@ def main(argv=None) -> int:
     p.add_argument("--budget", type=int, default=None, help="environment steps per seed for the 'at budget' column")
     p.add_argument("--window", type=int, default=WINDOW, help="episodes in the running mean of the curves and table")
     p.add_argument("--out", default=None, help="folder for the figures and compare.md (default: the first run's)")
+    p.add_argument("--unpublished", action="store_true",
+                   help="a look at runs on any seeds: nothing it writes may be published (without it, runs on "
+                        "seeds their preset was tuned or validated on, or outside 0-99, are refused)")
     args = p.parse_args(argv)
     return guarded("report", lambda: run(args))
 
@@ -35,7 +43,12 @@ def run(args) -> int:
         raise ValueError(f"{len(args.runs)} runs need {len(args.runs)} labels, got {len(args.labels)}")
     if args.window < 1 or (args.budget is not None and args.budget < 1):
         raise ValueError("--window and --budget must be positive")
-    written, text = report(args.runs, args.labels, Path(args.out or args.runs[0]), args.budget, args.window)
+    from trl_dgpq.selection import SelectionSeedsError
+    try:
+        written, text = report(args.runs, args.labels, Path(args.out or args.runs[0]), args.budget, args.window,
+                               check=None if args.unpublished else reportable)
+    except SelectionSeedsError as err:
+        raise SelectionSeedsError(f"{err} (--unpublished: a look at it that is not to be published)") from None
     print(text)
     for path in written:
         print("wrote", path)

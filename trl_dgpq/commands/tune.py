@@ -11,8 +11,10 @@
 
 The run settings are train's (--episodes, --env-steps, --seeds, --preset, --set KEY=VALUE,
 ...); the agent's SEARCH_SPACE (beside its config) says what is searched, but for a
-setting given here, which is kept. Seeds default to 1000-1004; the reporting seeds (0-99)
-are refused. The objective is what report.py shows for the domain (docs/running-at-scale.md, "Tuning"):
+setting given here, which is kept. Seeds default to 1000-1004 and validation seeds to
+1005-1014; the reporting seeds (0-99) are refused for either: seeds that chose a preset
+are never reported on (report refuses runs on them).
+The objective is what report.py shows for the domain (docs/running-at-scale.md, "Tuning"):
 steps to the threshold, else the measure at the budget, IQM over the seeds. Optuna's TPE
 sampler (seeded) picks the settings; a trial runs in stages and MedianPruner stops it
 after one if its learning curve is below the median there.
@@ -48,7 +50,7 @@ def tune_keys():
 
 
 def make_parser() -> Parser:
-    from trl_dgpq.study import TuneConfig
+    from trl_dgpq.study import DEFAULT_VALIDATION_SEEDS, TuneConfig
     p = Parser(prog=prog("tune"), description=__doc__,
                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", required=True, metavar="DIR", help="the study's folder: study.db and trials/")
@@ -63,8 +65,9 @@ def make_parser() -> Parser:
                    help="once the trials are done, run the K best and the first (the base preset's) again on "
                         "--validation-seeds at the full budget; --write-preset then writes the best there (five "
                         "tuning seeds rank close settings by luck) [0: none]")
-    p.add_argument("--validation-seeds", default="1005-1014", metavar="SEEDS",
-                   help="tuning seeds for --validate, none of the study's own [1005-1014]")
+    p.add_argument("--validation-seeds", default=DEFAULT_VALIDATION_SEEDS, metavar="SEEDS",
+                   help="seeds for --validate, none of the study's own nor a reporting seed (0-99) "
+                        f"[{DEFAULT_VALIDATION_SEEDS}]")
     p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
                    help="any run, env or agent setting, e.g. --set gp.noise_var=0.2 (repeatable)")
     add_setting_flags(p, {**{leaf.key: [("TuneConfig", leaf)] for leaf in leaves(TuneConfig)}, **cli_owners()})
@@ -86,11 +89,17 @@ def _main(argv=None) -> int:
     keys = tune_keys()
     given = given_settings(args, parser, process=(*PROCESS_FLAGS, *keys))
     tune_given = {k: getattr(args, k) for k in keys if getattr(args, k) is not None}
-    from trl_dgpq.collectors.experiment import parse_seeds
-    from trl_dgpq.study import Study
+    from trl_dgpq.collectors.experiment import parse_seeds, run_settings
+    from trl_dgpq.selection import check_selection_seeds
+    from trl_dgpq.study import DEFAULT_VALIDATION_SEEDS, Study
     if args.validate < 0:
         parser.error(f"--validate must be >= 0, got {args.validate}")
     try:
+        # studies and validations never touch the reporting seeds: refused before the study is opened
+        seeds = run_settings(given).get("seeds")
+        if seeds is not None:
+            check_selection_seeds(parse_seeds(seeds), "tuning seeds")
+        check_selection_seeds(parse_seeds(args.validation_seeds), "validation seeds", DEFAULT_VALIDATION_SEEDS)
         study = Study.open(args.out, args.storage, given, tune_given)
         validation_seeds = study.validation_seeds(parse_seeds(args.validation_seeds)) if args.validate else None
     except ValueError as err:  # everything asked is checked before any trial
