@@ -175,7 +175,7 @@ def use_threads(config: dict) -> None:
 
 def load_sections(config: dict):
     """(RunConfig, env config, agent config) objects of a config dict."""
-    unknown = set(config) - set(SECTIONS) - {"versions", "git", "lengthened"}
+    unknown = set(config) - set(SECTIONS) - {"versions", "git", "lengthened", "model_knowledge"}
     if unknown or not set(SECTIONS) <= set(config):
         raise ValueError(f"a config needs sections {list(SECTIONS)}, got {sorted(config)}")
     env_cls, agent_cls = classes(config["run"])

@@ -1,6 +1,6 @@
 """A run in a folder: nothing finished is lost, and an interrupted run continues exactly.
 
-    OUT/config.json     the resolved config + versions and git commit (written once)
+    OUT/config.json     the resolved config + versions, git commit and model knowledge (written once)
     OUT/status.json     running | finished | interrupted | failed, with the reason
     OUT/episodes.csv    one row per episode, appended (and flushed) as episodes end;
                         rewritten sorted by (seed, episode) when the run finishes
@@ -437,10 +437,17 @@ def deferred_signals():
             signal.signal(s, h)
 
 
+def recorded(config: dict) -> dict:
+    """What config.json holds: the resolved config, the versions and commit that ran it, and what
+    of the env's model it uses (``model_knowledge``: empty for a model-free run)."""
+    from trl_dgpq.envs import model_knowledge
+    return {**config, **provenance(), "model_knowledge": model_knowledge(config)}
+
+
 def start(config: dict, folder: RunFolder, progress: bool = True) -> pd.DataFrame:
     """Run ``config`` into the (new) ``folder``."""
     check_memory(config)
-    folder.write_json(CONFIG, {**config, **provenance()})
+    folder.write_json(CONFIG, recorded(config))
     return _execute(config, folder, None, progress)
 
 

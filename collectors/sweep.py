@@ -426,7 +426,7 @@ def _write_experiments(out: Path, experiments: Dict[str, dict]) -> None:
     """Each experiment's folder with its resolved config (all its seeds)."""
     for name, config in experiments.items():
         (out / name).mkdir()
-        runner.RunFolder(out / name).write_json(runner.CONFIG, {**config, **runner.provenance()})
+        runner.RunFolder(out / name).write_json(runner.CONFIG, runner.recorded(config))
 
 
 def _write_plan(out, experiments: Dict[str, dict], jobs: List[Job]) -> None:

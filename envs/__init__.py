@@ -63,9 +63,15 @@ def env_configs() -> list:
     return [d.config_class() for d in domains()]
 
 
+def model_knowledge(config: dict) -> list:
+    """What of its env's model the run of ``config`` uses (``Domain.model_knowledge``): a reward,
+    potential, state or agent built from the model is a documented variant, never model-free."""
+    return domain(config["run"]["env"]).model_knowledge(config)
+
+
 def make_env(name: str, cfg, seeds, device="cpu"):
     return env_class(name)(seeds, cfg, device=device)
 
 
 __all__ = ["DOMAINS", "Domain", "domain", "domains", "split_name", "env_class", "check_env_name", "env_configs",
-           "make_env"]
+           "make_env", "model_knowledge"]

@@ -112,6 +112,18 @@ class Domain:
         differ only in them are runs of one task, and a report puts them in one table."""
         return tuple(getattr(self.analysis(), "AGENT_SIDE_SETTINGS", ()))
 
+    def model_knowledge(self, config: dict) -> list:
+        """What of the env's model a run of ``config`` (a resolved config: its "run", "env" and
+        "agent" sections) uses: the texts of the domain's ``MODEL_KNOWLEDGE`` entries it matches,
+        each keyed "section.setting=value" (e.g. "env.reward=impact"). Empty: model-free."""
+        found = []
+        for key, text in getattr(self.analysis(), "MODEL_KNOWLEDGE", {}).items():
+            path, _, value = key.partition("=")
+            section, _, setting = path.partition(".")
+            if str(config.get(section, {}).get(setting)) == value:
+                found.append(text)
+        return found
+
     def threshold(self, env_id: Optional[str] = None):
         """The ``trl_dgpq.analysis.Threshold`` a learner must meet here (None: not defined)."""
         return getattr(self.analysis(), "THRESHOLD", None)

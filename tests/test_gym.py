@@ -293,33 +293,3 @@ def _run(agent: str, met_at, episodes: int = 30, steps: int = 10, preset: str = 
             for k, m in enumerate(met_at) for e in range(1, episodes + 1)]
     config = {"run": {"env": "gym:CartPole-v1", "agent": agent, "preset": preset, "env_steps": budget}}
     return Run(None, pd.DataFrame(rows), config)
-
-
-def test_the_claim_holds_is_reversed_or_is_not_shown_by_the_interval_of_p():
-    from trl_dgpq.envs.gym.analysis import claim
-    # the mean of the last 10 returns meets 195 once 10 of them are 200: at episode 10 (100 steps) from
-    # episode 1; never for the other: counted as the budget (300), so every DGPQ seed is better
-    fast = claim(_run("dgpq", [1] * 8), _run("dqn", [None] * 8))
-    assert fast.ours == "P(DGPQ improves on DQN) = 1.00 [1.00, 1.00]: DGPQ shown faster"
-    assert fast.verdict == "reproduced" and "(300 steps per seed)" in fast.claim and fast.source == "this suite"
-    # met at episode 34 (340 steps), after the budget of 300: never, as DQN's seeds
-    late = claim(_run("dgpq", [25] * 8, episodes=40), _run("dqn", [None] * 8, episodes=40))
-    assert late.ours == "P(DGPQ improves on DQN) = 0.50 [0.50, 0.50]: neither shown faster"
-    assert late.verdict == "not reproduced"
-    slow = claim(_run("dgpq", [None] * 8), _run("dqn", [1] * 8))
-    assert slow.ours == "P(DGPQ improves on DQN) = 0.00 [0.00, 0.00]: DQN shown faster"
-    assert slow.verdict == "not reproduced"
-    same = claim(_run("dgpq", [1, 5, 9, None] * 2), _run("dqn", [1, 5, 9, None] * 2))
-    assert same.ours.startswith("P(DGPQ improves on DQN) = 0.50") and same.ours.endswith("neither shown faster")
-    assert same.verdict == "not reproduced"
-
-
-def test_claims_pair_dgpq_and_dqn_default_with_default_and_tuned_with_tuned():
-    from trl_dgpq.envs.gym.analysis import claims
-    runs = {"cartpole-dgpq": _run("dgpq", [1] * 4, preset="default"), "cartpole-dqn": _run("dqn", [None] * 4,
-                                                                                         preset="default"),
-            "cartpole-dgpq-tuned": _run("dgpq", [None] * 4), "cartpole-dqn-tuned": _run("dqn", [1] * 4),
-            "mountaincar-dgpq": _run("dgpq", [1] * 4, preset="default")}          # no DQN run: no claim
-    got = claims(runs)
-    assert [c.claim.split(" needs")[0] for c in got] == ["CartPole-v1, default DGPQ", "CartPole-v1, tuned DGPQ"]
-    assert [c.verdict for c in got] == ["reproduced", "not reproduced"] and "than default DQN" in got[0].claim

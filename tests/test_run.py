@@ -35,7 +35,7 @@ def test_run_folder_files_status_and_provenance(tmp_path):
     df = pd.read_csv(out / "episodes.csv")
     assert list(df.seed) == [0, 0, 0, 1, 1, 1] and list(df.episode) == [1, 2, 3] * 2
     cfg = json.loads((out / "config.json").read_text())
-    assert set(cfg) == {"run", "env", "agent", "versions", "git"}
+    assert set(cfg) == {"run", "env", "agent", "versions", "git", "model_knowledge"} and cfg["model_knowledge"] == ["reward: the distance to the goal (its position)"]
     assert {"torch", "torchrl", "tensordict", "numpy"} <= set(cfg["versions"])
     assert cfg["run"]["preset"] == "shaped" and cfg["run"]["seeds"] == [0, 1]
     assert set(cfg["git"]) == {"commit", "dirty"} and len(cfg["git"]["commit"]) == 40

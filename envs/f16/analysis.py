@@ -14,12 +14,17 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from trl_dgpq.analysis import Threshold, ms_per_seed_step, rolling
+from trl_dgpq.analysis import Threshold, ms_per_seed_step, rolling, seed_means
 
 MEASURE = ("return", "episode reward")
 TERMINATED = "left the flight envelope"
 THRESHOLD = Threshold("return", ">=", -41, 10, "mean episode reward >= -41 (PD's -37 minus 10%) over 10 episodes")
 
+# What of the aircraft's model a run uses (claims.py: its claims are variants, counted apart).
+MODEL_KNOWLEDGE = {
+    "env.potential=lqr": "potential: the LQR's value on the linearised model",
+    "run.agent=lqr": "the LQR of the linearised model",
+}
 # GWH14's Figure 3 as read from the paper: (episode, reward) marks per Lipschitz constant.
 PAPER = {5.0: [(1, -525), (150, -47)], 10.0: [(1, -514), (950, -113)]}
 
@@ -168,8 +173,9 @@ REPRODUCE = [
     ("f16-nothing", dict(agent="constant", preset="default"), SCRIPTED_SCALES),
     ("f16-random", dict(agent="random", preset="default"), SCRIPTED_SCALES),
 ]
-# The "flight-05" formulation (issue 28: a decision every 0.5 s), where DGPQ beats holding in time.
-FLIGHT_SCALES = {"smoke": (1, 3), "quick": (2, 50), "full": (10, 1500), "report": (10, 3000)}
+# The "flight-05" formulation (a decision every 0.5 s), where DGPQ beats holding in time.
+# These parts exist for their claims, which 50 episodes cannot decide: no quick scale.
+FLIGHT_SCALES = {"smoke": (1, 3), "full": (10, 1500), "report": (10, 3000)}
 FLIGHT_SCRIPTED = {k: (seeds, min(episodes, 100)) for k, (seeds, episodes) in FLIGHT_SCALES.items()}
 REPRODUCE += [
     ("f16-05-dgpq-lq5", dict(agent="dgpq", preset="flight-05"), FLIGHT_SCALES),
@@ -178,8 +184,8 @@ REPRODUCE += [
     ("f16-05-pd", dict(agent="pd", preset="flight-05"), FLIGHT_SCRIPTED),
     ("f16-05-nothing", dict(agent="constant", preset="flight-05"), FLIGHT_SCRIPTED),
 ]
-# flight-05 shaped by the LQR's potential (issue 28), where DGPQ flies: GWH14's 1,000 episodes.
-SHAPED_SCALES = {"smoke": (1, 3), "quick": (2, 50), "full": (10, 1000), "report": (10, 1000)}
+# flight-05 shaped by the LQR's potential (uses the model), where DGPQ flies: GWH14's 1,000 episodes.
+SHAPED_SCALES = {"smoke": (1, 3), "full": (10, 1000), "report": (10, 1000)}
 REPRODUCE += [
     ("f16-shaped-dgpq-lq5", dict(agent="dgpq", preset="flight-05-shaped"), SHAPED_SCALES),
     ("f16-shaped-dgpq-lq10", dict(agent="dgpq", preset="flight-05-shaped", lipschitz=10.0), SHAPED_SCALES),
@@ -213,14 +219,15 @@ def row(name: str, df: pd.DataFrame, late=None) -> tuple:
     return f"| {name.removeprefix('f16-')} | {df.seed.nunique()} x {E} | " + " | ".join(cells) + " |"
 
 
-TABLE_HEAD = ["| agent | seeds x episodes | reward, episodes 1-10 | 100-200 | late (episodes) | stable flight "
-              "reached (episode) | ms per seed-step |", "|---|---|---|---|---|---|---|"]
+TABLE_HEAD = ["| agent | seeds x episodes | episode reward, episodes 1-10 (mean over seed-episodes) | 100-200 (mean) "
+              "| late (episodes; mean) | seeds flying stably (median first episode) | ms per seed-step |",
+              "|---|---|---|---|---|---|---|"]
 
 
 PARTS = {  # name prefix: (folder, heading, the figure's block and preset)
-    "f16-05-": ("f16-05", "A decision every 0.5 s (`flight-05`, issue 28)", 50, "flight-05"),
-    "f16-shaped-": ("f16-shaped", "Shaped by the LQR's potential (`flight-05-shaped`, issue 28)", 10, "flight-05-shaped"),
-    "f16-g99-": ("f16-g99", "GWH14's formulation at γ 0.99, shaped by the LQR's potential (`gamma99-shaped`, issue 28)",
+    "f16-05-": ("f16-05", "A decision every 0.5 s (`flight-05`)", 50, "flight-05"),
+    "f16-shaped-": ("f16-shaped", "Shaped by the LQR's potential (`flight-05-shaped`; uses the model)", 10, "flight-05-shaped"),
+    "f16-g99-": ("f16-g99", "GWH14's formulation at γ 0.99, shaped by the LQR's potential (`gamma99-shaped`; uses the model)",
                  10, "gamma99-shaped"),
 }
 
@@ -238,70 +245,102 @@ def part(prefix: str, runs: dict, out: Path, title: str) -> str:
             + f"\n\n![reward, {folder}]({folder}/f16_reward.png)\n")
 
 
-def figure3(runs: dict, names: tuple, source: str, variant: str, rule: str, judge) -> list:
-    """GWH14's Figure 3 marks (the reward by episodes 100-200 at L_Q 5, 900-1,000 at L_Q 10)
-    against the runs ``names`` (L_Q 5, L_Q 10), each judged by ``judge(ours, theirs)``; a reward
-    that agrees while fewer than half the seeds ever fly stably is "partly" (GWH14 claim both)."""
-    from trl_dgpq.analysis.claims import Claim
-    out = []
-    for n, L in zip(names, (5, 10)):
-        if n not in runs:
-            continue
-        df, (e1, r1) = runs[n].df, PAPER[float(L)][1]
-        lo, hi = (100, 200) if e1 < 500 else (900, 1000)
-        stable, ran = episodes_to_stable(df), int(df.episode.max())
-        claim = (f"{variant}DGPQ at L_Q {L}: reward about {PAPER[float(L)][0][1]} at first, {r1} by episodes {lo}-{hi}, "
-                 f"stable {'within 100 episodes' if L == 5 else 'by about 1,000 episodes'}")
-        if ran < hi:   # a window the run only began is not GWH14's window
-            out.append(Claim(source, claim, f"episodes {lo}-{hi} not reached in this run's {ran}", "not measured"))
-            continue
-        ours, flew = window_reward(df, lo, hi), int(stable.notna().sum())
-        verdict = judge(ours, r1)
-        if verdict == "reproduced" and 2 * flew < len(stable):
-            verdict = "partly"
-        out.append(Claim(source, claim, f"{window_reward(df, 1, 10):.0f} in episodes 1-10, {ours:.0f} in {lo}-{hi}, "
-                         f"{flew} of {len(stable)} seeds stable ({rule})", verdict))
-    return out
+def reference(name: str):
+    """Per seed: the mean episode reward of a scripted reference over every episode it ran (its
+    value does not change with the episode)."""
+    return lambda runs: seed_means(runs[name].df, "return")
 
 
-def claims(runs: dict) -> list:
-    """GWH14's Figure 3 against ours, within 1.5x, and in GWH14's formulation shaped at gamma 0.99
-    (no worse than 1.5x); at a decision every 0.5 s, whether DGPQ beats holding by its last 100
-    episodes; and, shaped, issue 28's goal."""
-    from trl_dgpq.analysis.claims import Claim, within
-    out = figure3(runs, ("f16-dgpq-lq5", "f16-dgpq-lq10"), "GWH14", "", "agreeing if within 1.5x",
-                  lambda ours, theirs: within(ours, theirs, 1.5))
-    out += figure3(runs, ("f16-g99-dgpq-lq5", "f16-g99-dgpq-lq10"), "this suite (issue 28)",
-                   "at γ 0.99, shaped by the LQR's potential (`gamma99-shaped`), ", "agreeing if no worse than 1.5x",
-                   lambda ours, theirs: "reproduced" if ours >= 1.5 * theirs else "not reproduced")
-    if "f16-05-dgpq-lq5" in runs and "f16-05-nothing" in runs:
-        df, hold = runs["f16-05-dgpq-lq5"].df, runs["f16-05-nothing"].df
+def rewards(name: str, first=None, last=None):
+    """Per seed: the mean episode reward of run ``name`` over episodes ``first``..``last`` (None: its
+    last 100); an error if it did not run that far."""
+    def per_seed(runs):
+        df = runs[name].df
         E = int(df.episode.max())
-        ours, holding = window_reward(df, E - 99, E), window_reward(hold, 1, int(hold.episode.max()))
-        out.append(Claim("this suite (issue 28)", "deciding every 0.5 s (`flight-05`), DGPQ at L_Q 5 beats doing "
-                         "nothing by episodes 2,901-3,000 (about -99; holding -136)",
-                         f"{ours:.0f} in episodes {max(1, E - 99)}-{E}, holding {holding:.0f}",
-                         "not measured" if E < 3000 else "reproduced" if ours > holding else "not reproduced"))
-    if "f16-shaped-dgpq-lq5" in runs and "f16-05-nothing" in runs and "f16-05-pd" in runs:
-        df = runs["f16-shaped-dgpq-lq5"].df
-        pd_reward = window_reward(runs["f16-05-pd"].df, 1, int(runs["f16-05-pd"].df.episode.max()))
-        holding = window_reward(runs["f16-05-nothing"].df, 1, int(runs["f16-05-nothing"].df.episode.max()))
-        claim = ("shaped by the LQR's potential (`flight-05-shaped`), DGPQ at L_Q 5 is past halfway from doing "
-                 "nothing to PD by episodes 91-100 and within 10 % of PD by 191-200 (issue 28's goal; seeds' median)")
-        if df.episode.max() < 200:
-            out.append(Claim("this suite (issue 28)", claim, f"episodes 191-200 not reached in {df.episode.max()}",
-                             "not measured"))
-        else:
-            early, late = (float(df[df.episode.between(lo, lo + 9)].groupby("seed")["return"].mean().median())
-                           for lo in (91, 191))
-            met = early >= (holding + pd_reward) / 2 and late >= 1.1 * pd_reward
-            out.append(Claim("this suite (issue 28)", claim, f"{early:.0f} in episodes 91-100, {late:.0f} in 191-200; "
-                             f"PD {pd_reward:.0f}, holding {holding:.0f}", "reproduced" if met else "not reproduced"))
+        lo, hi = (first, last) if first is not None else (max(1, E - 99), E)
+        if hi > E:
+            raise ValueError(f"{name} ran {E} episodes, not to episode {hi}")
+        return seed_means(df, "return", lo, hi)
+    return per_seed
+
+
+def interval_of(per_seed):
+    def measure(runs):
+        from trl_dgpq.analysis.claims import seeds_interval
+        return seeds_interval(per_seed(runs))
+    return measure
+
+
+def stable_by(name: str, episode: int):
+    """The claim's measure: the share of seeds whose 10-episode mean met THRESHOLD by ``episode``."""
+    def measure(runs):
+        from trl_dgpq.analysis.claims import share_interval
+        df = runs[name].df
+        if df.episode.max() < episode:
+            raise ValueError(f"{name} ran {df.episode.max()} episodes, not to episode {episode}")
+        stable = episodes_to_stable(df)
+        return share_interval(int((stable <= episode).sum()), len(stable), f"flying stably by episode {episode}")
+    return measure
+
+
+def of_pd(name: str, first: int, last: int, hold: str, pd_run: str, progress: bool):
+    """The claim's measure, per seed over episodes first..last: with ``progress``, how far from doing
+    nothing to PD the learner got (0: holding, 1: PD); else its reward as a multiple of PD's (both
+    negative: 1.1 is 10 % worse). The references' means are over every seed-episode they ran."""
+    def measure(runs):
+        from trl_dgpq.analysis.claims import seeds_interval
+        ours = rewards(name, first, last)(runs)
+        pd_mean = float(runs[pd_run].df["return"].mean())
+        hold_mean = float(runs[hold].df["return"].mean())
+        return seeds_interval((ours - hold_mean) / (pd_mean - hold_mean) if progress else ours / pd_mean)
+    return measure
+
+
+def declared_claims() -> list:
+    """GWH14's Figure 3 (two marks and stable flight per L_Q), in GWH14's formulation and, a variant
+    using the model, at gamma 0.99 shaped by the LQR's potential; deciding every 0.5 s, that DGPQ
+    beats doing nothing; shaped by the LQR's potential, the suite's goal of flying near PD."""
+    from trl_dgpq.analysis.claims import Agrees, Beats, Bound, Claim
+    out = []
+    for prefix, where in (("f16-", "GWH14's formulation"),
+                          ("f16-g99-", "GWH14's formulation at gamma 0.99, shaped by the LQR's potential "
+                                       "(`gamma99-shaped`)")):
+        for L, name in ((5, f"{prefix}dgpq-lq5"), (10, f"{prefix}dgpq-lq10")):
+            (_, first), (e1, mark) = PAPER[float(L)]
+            lo, hi = (100, 200) if e1 < 500 else (900, 1000)
+            by = 100 if L == 5 else 1000
+            key = f"f16/{prefix.strip('-').replace('f16', 'gwh14')}/lq{L}"
+            base = "f16-nothing"
+            out += [Claim(f"{key}/reward", "GWH14", f"DGPQ at L_Q {L}: episode reward about {first} at first, {mark} "
+                          f"by episodes {lo}-{hi} (each seed's mean there); run in {where}",
+                          Agrees(mark, 1.5, higher_is_better=True), interval_of(rewards(name, lo, hi)), (name,),
+                          baseline=base, baseline_measure=interval_of(reference(base)), fmt="{:.1f}"),
+                    Claim(f"{key}/stable", "GWH14", f"DGPQ at L_Q {L} flies stably "
+                          f"{'within 100 episodes' if L == 5 else 'by about 1,000 episodes'} (read: more than half "
+                          f"the seeds' 10-episode mean within 10 % of PD by episode {by:,}); run in {where}",
+                          Bound(0.5, higher_is_better=True), stable_by(name, by), (name,), fmt="{:.2f}")]
+    out.append(Claim("f16/flight-05/beats-holding", "this suite", "deciding every 0.5 s (`flight-05`), DGPQ at L_Q 5 "
+                     "beats doing nothing over its last 100 episodes (of 3,000)", Beats(higher_is_better=True),
+                     interval_of(rewards("f16-05-dgpq-lq5")), ("f16-05-dgpq-lq5",), baseline="f16-05-nothing",
+                     baseline_measure=interval_of(reference("f16-05-nothing")), decided_at=("report",),
+                     fmt="{:.1f}"))
+    shaped = "f16-shaped-dgpq-lq5", "f16-05-nothing", "f16-05-pd"
+    out += [Claim("f16/flight-05-shaped/halfway", "this suite", "shaped by the LQR's potential (`flight-05-shaped`), "
+                  "DGPQ at L_Q 5 is past halfway from doing nothing (0) to PD (1) by episodes 91-100",
+                  Bound(0.5, higher_is_better=True), of_pd(shaped[0], 91, 100, *shaped[1:], progress=True), shaped,
+                  fmt="{:.2f}"),
+            Claim("f16/flight-05-shaped/near-pd", "this suite", "shaped by the LQR's potential (`flight-05-shaped`), "
+                  "DGPQ at L_Q 5 is within 10 % of PD by episodes 191-200 (its reward as a multiple of PD's)",
+                  Bound(1.1, higher_is_better=False), of_pd(shaped[0], 191, 200, *shaped[1:], progress=False),
+                  shaped, fmt="{:.3f}")]
     return out
 
 
-def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
-    """REPORT.md's F-16 section; ``runs``: {name in REPRODUCE: Run}."""
+CLAIMS = declared_claims()
+
+
+def reproduce_section(runs: dict, out: Path, label: str, title: str, judged: list) -> str:
+    """REPORT.md's F-16 section; ``runs``: {name in REPRODUCE: Run}; ``judged``: the verdicts of ``CLAIMS``."""
     (out / "f16").mkdir(exist_ok=True)
     variants = {p: {n: r for n, r in runs.items() if n.startswith(p)} for p in PARTS}
     gwh14 = {n: r for n, r in runs.items() if not any(n.startswith(p) for p in PARTS)}
@@ -309,7 +348,7 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
     figures([gwh14[n] for n in names], [n.removeprefix("f16-") for n in names], out / "f16",
             block=10, title=title)
     rows = TABLE_HEAD + [row(n, gwh14[n].df) for n in names]
-    sentences = [c.bullet() for c in claims(runs)]
+    sentences = [j.bullet() for j in judged]
     return (f"## Aircraft altitude hold (GWH14's second experiment) -- Figure 3\n\n{label}\n\n"
             + "\n".join(rows) + "\n\n" + "\n".join(sentences)
             + "\n\n![reward](f16/f16_reward.png) ![trace](f16/f16_trace.png)\n"

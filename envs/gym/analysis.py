@@ -55,35 +55,50 @@ SCALES = {"smoke": (1, CAP, "300"), "quick": (3, CAP, "5,000-30,000"),
           **{s: (10, CAP, "20,000-120,000") for s in ("full", "report")}}   # for the label only
 
 
-def claim(dgpq, dqn):
-    """Whether "DGPQ needs fewer env steps to the threshold" holds for two runs on one task: P(a
-    DGPQ seed improves on a DQN seed) with its 95 % CI (a seed that never met it: the budget);
-    reproduced when the CI lies above 0.5."""
-    from trl_dgpq.analysis.claims import Claim
-    from trl_dgpq.analysis.stats import probability_of_improvement
-    from trl_dgpq.analysis.summary import steps_to_threshold
-    budget = dqn.config["run"]["env_steps"]
-    threshold = THRESHOLDS[dqn.env_id]
-    steps = [steps_to_threshold(r.df, threshold, budget).fillna(budget).to_numpy() for r in (dgpq, dqn)]
-    p, low, high = probability_of_improvement(-steps[0], -steps[1])
-    shown = ("DGPQ shown faster" if low > 0.5 else "DQN shown faster" if high < 0.5 else "neither shown faster")
-    return Claim("this suite", f"{dqn.env_id}, {dgpq.preset} DGPQ needs fewer env steps to the threshold than "
-                 f"{dqn.preset} DQN ({budget:,} steps per seed)",
-                 f"P(DGPQ improves on DQN) = {p:.2f} [{low:.2f}, {high:.2f}]: {shown}",
-                 "reproduced" if low > 0.5 else "not reproduced")
+def steps_to(name: str):
+    """Per seed: env steps to the task's threshold within the budget, the budget if never."""
+    def per_seed(runs):
+        from trl_dgpq.analysis.summary import steps_to_threshold
+        run = runs[name]
+        budget = run.config["run"]["env_steps"]
+        return steps_to_threshold(run.df, THRESHOLDS[run.env_id], budget).fillna(budget).to_numpy()
+    return per_seed
 
 
-def claims(runs: dict) -> list:
-    """Default against default and tuned against tuned, per task."""
-    tags = [i.split("-")[0].lower() for i in BUDGETS]
-    return [claim(runs[f"{t}-dgpq{s}"], runs[f"{t}-dqn{s}"]) for t in tags for s in ("", "-tuned")
-            if f"{t}-dgpq{s}" in runs and f"{t}-dqn{s}" in runs]
+def faster(dgpq: str, dqn: str):
+    """The claim's measure: P(a DGPQ seed needs fewer env steps to the threshold than a DQN seed)."""
+    def measure(runs):
+        from trl_dgpq.analysis.claims import improvement_interval
+        return improvement_interval(steps_to(dgpq)(runs), steps_to(dqn)(runs), lower_is_better=True)
+    return measure
 
 
-def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
-    """REPORT.md's section on DGPQ against DQN; ``runs``: {name in REPRODUCE: Run}."""
+def declared_claims() -> list:
+    """This suite's claim, "DGPQ needs fewer env steps to the threshold than DQN", per task,
+    default against default and tuned against tuned (where both have a tuned preset)."""
+    from trl_dgpq.analysis.claims import Bound, Claim
+    names = {name for name, *_ in REPRODUCE}
+    out = []
+    for env_id, budget in BUDGETS.items():
+        tag = env_id.split("-")[0].lower()
+        for kind, suffix in (("default", ""), ("tuned", "-tuned")):
+            dgpq, dqn = f"{tag}-dgpq{suffix}", f"{tag}-dqn{suffix}"
+            if dgpq in names and dqn in names:
+                out.append(Claim(f"gym/{tag}/{kind}", "this suite", f"{env_id}, {kind} DGPQ needs fewer env steps "
+                                 f"to the threshold ({THRESHOLDS[env_id].text}) than {kind} DQN, within {budget:,} "
+                                 "per seed", Bound(0.5, higher_is_better=True), faster(dgpq, dqn), (dgpq, dqn),
+                                 fmt="{:.2f}"))
+    return out
+
+
+CLAIMS = declared_claims()
+
+
+def reproduce_section(runs: dict, out: Path, label: str, title: str, judged: list) -> str:
+    """REPORT.md's section on DGPQ against DQN; ``runs``: {name in REPRODUCE: Run}; ``judged``: the
+    verdicts of ``CLAIMS``."""
     from trl_dgpq.analysis.report import report
-    parts = [f"## DGPQ against DQN (gymnasium classic control; issues 11, 27)\n\n{label}\n"]
+    parts = [f"## DGPQ against DQN (gymnasium classic control)\n\n{label}\n"]
     for folder, group, what in (
             ("gym", {n: r for n, r in runs.items() if not n.endswith("-zoo")},
              "Each learner on its default preset and on its `tuned` one (an Optuna study's best, validated)."),
@@ -98,8 +113,7 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str) -> str:
         figures = " ".join(f"![{p.stem}]({folder}/{p.name})" for p in written
                            if p.suffix == ".png" and p.name.startswith("compare-"))
         parts += [what, text, figures, ""]
-    found = claims(runs)
-    if found:
+    if judged:
         parts += ["Our claim, \"DGPQ needs fewer environment steps than DQN\", default against default and "
-                  "tuned against tuned:", "", *[c.bullet() for c in found], ""]
+                  "tuned against tuned:", "", *[j.bullet() for j in judged], ""]
     return "\n".join(parts)

@@ -10,9 +10,9 @@ What is particular to a domain (its measure and threshold, its own figures and t
 sections of the reproduction report) lives in ``envs/<domain>/analysis.py``.
 """
 from .runs import Run, load_run, read_csv_exact
-from .summary import (Threshold, at_budget, band, count, curve, kernel_fits_per_seed, median_steps,
-                      ms_per_seed_step, paired_ratios, rolling, steps_to_threshold)
+from .summary import (Threshold, at_budget, band, count, curve, kernel_fits_per_seed, last_episodes, median_steps,
+                      ms_per_seed_step, paired_ratios, rolling, seed_means, steps_to_threshold)
 
 __all__ = ["Run", "load_run", "read_csv_exact", "Threshold", "at_budget", "band", "count", "curve",
-           "kernel_fits_per_seed", "median_steps", "ms_per_seed_step", "paired_ratios", "rolling",
-           "steps_to_threshold"]
+           "kernel_fits_per_seed", "last_episodes", "median_steps", "ms_per_seed_step", "paired_ratios", "rolling",
+           "seed_means", "steps_to_threshold"]

@@ -3,8 +3,10 @@
 ``report`` writes ``results.csv`` beside ``compare.md``, ``reproduce`` beside REPORT.md; the
 columns are ``COLUMNS`` in both, so a committed file and the next run's cannot drift apart
 (tests/test_results.py). Each row says what ran (env, agent, preset, seeds, length), what
-came out (the domain's measure over each seed's last ``last`` episodes: median, IQM and its
-95 % bootstrap CI over seeds), what it cost (microseconds per seed-step), at which commit,
+came out (the domain's measure, each seed's mean over its last ``last`` episodes within the
+budget -- ``summary.last_episodes``, the window every table uses --, then the median, and the
+IQM with its 95 % bootstrap CI, over seeds), what it cost (microseconds per seed-step), what of
+the env's model it uses (``uses_model``: empty for a model-free run), at which commit,
 and the command that runs it again: ``train.py`` with the run's preset and a ``--set`` for
 every setting that differs from it.
 """
@@ -17,10 +19,10 @@ from typing import Optional
 import numpy as np
 
 from .stats import iqm
-from .summary import ms_per_seed_step
+from .summary import last_episodes, ms_per_seed_step
 
 COLUMNS = ("experiment", "env", "agent", "preset", "seeds", "episodes", "env_steps", "measure", "last",
-           "median", "iqm", "iqm_low", "iqm_high", "us_per_seed_step", "commit", "command")
+           "median", "iqm", "iqm_low", "iqm_high", "us_per_seed_step", "uses_model", "commit", "command")
 
 
 def seeds_text(seeds) -> str:
@@ -75,13 +77,15 @@ def row(experiment: str, run, last: Optional[int] = None, command: Optional[str]
     column, _ = run.measure()
     if last is None:
         last = getattr(run.domain.analysis(), "DEFAULT_LAST", 10)
-    per_seed = run.df.sort_values(["seed", "episode"]).groupby("seed").tail(last).groupby("seed")[column].mean()
+    budget = run.config["run"].get("env_steps", 0)
+    per_seed = last_episodes(run.df, last, budget).groupby("seed")[column].mean()
     point, low, high = iqm(per_seed.to_numpy())
     # a sweep's experiment: its config is its first job's, its episodes every job's seeds
     recorded = run.config["run"]
     cfg = {**run.config, "run": {**recorded, "seeds": [int(s) for s in per_seed.index],
                                  "episodes": recorded.get("episodes", int(run.df.episode.max())),
                                  "env_steps": recorded.get("env_steps", 0)}}
+    from trl_dgpq.envs import model_knowledge
     if command is None:
         try:
             command = train_command(cfg)
@@ -92,6 +96,7 @@ def row(experiment: str, run, last: Optional[int] = None, command: Optional[str]
                 env_steps=cfg["run"]["env_steps"], measure=column, last=last,
                 median=float(np.median(per_seed)), iqm=point, iqm_low=low, iqm_high=high,
                 us_per_seed_step=round(ms_per_seed_step(run.df) * 1e3, 1),
+                uses_model="; ".join(model_knowledge(run.config)),
                 commit=(cfg.get("git") or {}).get("commit", ""), command=command)
 
 

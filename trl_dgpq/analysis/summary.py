@@ -59,12 +59,25 @@ def steps_to_threshold(df: pd.DataFrame, threshold: Threshold, budget=None) -> p
     return first.reindex(sorted(df["seed"].unique()))
 
 
+def last_episodes(df: pd.DataFrame, window: int, budget=None) -> pd.DataFrame:
+    """The one window every table uses: each seed's last ``window`` episodes that ended within
+    ``budget`` env steps (None or 0: every episode it ran). ``df`` as ``load_run`` gives it."""
+    within = df[df["env_steps"] <= budget] if budget else df
+    return within.sort_values(["seed", "episode"], kind="stable").groupby("seed").tail(window)
+
+
 def at_budget(df: pd.DataFrame, column: str, budget: int, window: int) -> pd.Series:
-    """Per seed: mean of ``column`` over its last ``window`` episodes that ended within ``budget``
-    (NaN for a seed none of whose episodes did)."""
-    within = df[df["env_steps"] <= budget]
-    means = within.groupby("seed")[column].apply(lambda v: v.iloc[-window:].mean())
+    """Per seed: mean of ``column`` over ``last_episodes`` (NaN for a seed none of whose episodes
+    ended within ``budget``)."""
+    means = last_episodes(df, window, budget).groupby("seed")[column].mean()
     return means.reindex(sorted(df["seed"].unique()))
+
+
+def seed_means(df: pd.DataFrame, column: str, first: int = 1, last=None) -> pd.Series:
+    """Per seed: the mean of ``column`` over its episodes ``first``..``last`` (None: to its end);
+    NaN for a seed with none there."""
+    window = df[(df["episode"] >= first) & (df["episode"] <= (last if last is not None else np.inf))]
+    return window.groupby("seed")[column].mean().reindex(sorted(df["seed"].unique()))
 
 
 def curve(df: pd.DataFrame, column: str, window: int, grid: np.ndarray) -> np.ndarray:

@@ -44,7 +44,7 @@ def run(args) -> int:
         # each seed's own last episodes: seeds a budget stopped end at different episodes
         train = trained.df.groupby("seed").tail(args.episodes)[column].mean()
         print(f"{folder}: {label}, mean over {df.seed.nunique()} seeds x {args.episodes} evaluation episodes: "
-              f"{fmt(df[column].mean())} (the last {args.episodes} training episodes: {fmt(train)}); "
+              f"{fmt(df[column].mean())} (mean over each seed's last {args.episodes} training episodes: {fmt(train)}); "
               f"wrote {folder / EVAL}")
     return 0
 

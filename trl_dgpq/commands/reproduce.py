@@ -65,7 +65,8 @@ def same_config(config: dict) -> dict:
 
 
 def experiments(scale: str, only=None) -> dict:
-    """{experiment name: resolved config} at ``scale``."""
+    """{experiment name: resolved config} at ``scale`` (an experiment runs at the scales its sizes
+    name: one that only decides claims is left out of the scales too small to decide them)."""
     out = {}
     for d, analysis in reproductions(only):
         for name, settings, *own in analysis.REPRODUCE:
@@ -127,22 +128,25 @@ def write_report(out: Path, scale: str, wall: float, only=None) -> Path:
                  "claims appear once all its experiments have; the run continues with the same command.\n\n")
     title = f"{scale} scale" + (" (fewer seeds and episodes than the seed report)"
                                 if scale not in ("full", "report") else "")
-    from trl_dgpq.analysis.claims import table
-    loaded, sections, claims = [], [], []
+    from trl_dgpq.analysis.claims import judge, table
+    loaded, sections, judged = [], [], []
     for d, analysis in reproductions(only):
         names = [name for name, *_ in analysis.REPRODUCE if name in planned]
         runs = {name: load_run(out / name) for name in names if name in done}
         loaded.append((analysis, runs))
         if len(runs) == len(names):
-            sections.append(analysis.reproduce_section(runs, out, scale_label(scale, only), title))
-            claims += analysis.claims(runs) if hasattr(analysis, "claims") else []
+            mine = [judge(c, runs, scale, planned) for c in getattr(analysis, "CLAIMS", [])]
+            sections.append(analysis.reproduce_section(runs, out, scale_label(scale, only), title, mine))
+            judged += mine
         else:
             sections.append(f"## {d.name}: not finished\n\n{len(runs)} of {len(names)} experiments have finished; "
                             f"waiting for {', '.join(n for n in names if n not in runs)}.\n")
     summary = ("## Claims, and whether they reproduce\n\nEach claim of GWH14, the seed report, AC00 (the model's "
-               "closed form) and this suite's own README, beside what this run measured; the sections below "
-               "have the tables and figures.\n\n" + table(claims) + "\n\n") if claims else ""
-    (out / "claims.md").write_text(table(claims) + "\n")   # the table alone: the docs site includes it
+               "closed form) and this suite's own goals, with its rule, fixed before the run, and what this run "
+               "measured (`trl_dgpq/analysis/claims.py` says how each kind is judged; a claim judged on a run that "
+               "uses the env's model is a variant, counted apart); the sections below have the tables and "
+               "figures.\n\n" + table(judged) + "\n\n") if judged else ""
+    (out / "claims.md").write_text(table(judged) + "\n")   # the table alone: the docs site includes it
     path = out / "REPORT.md"
     path.write_text(head + summary + "\n".join(sections) + "\n" + cost_section(loaded))
     from trl_dgpq.analysis import results
