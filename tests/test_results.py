@@ -81,22 +81,6 @@ def test_every_committed_row_has_the_columns_and_a_command_that_resolves(path, c
         assert len(r["commit"]) == 40
 
 
-def test_publish_copies_the_report_tables_and_figures_and_nothing_of_the_runs(tmp_path):
-    out, to = tmp_path / "repro", tmp_path / "results" / "report"
-    (out / "square").mkdir(parents=True)
-    (out / "square-dgpq" / "jobs" / "0").mkdir(parents=True)
-    for name in ("REPORT.md", "claims.md", "results.csv", "square/qhat.png", "square-dgpq/episodes.csv",
-                 "square-dgpq/curve.png", "square-dgpq/jobs/0/checkpoint.pt"):
-        (out / name).write_text(name)
-    (to / "old").mkdir(parents=True)
-    (to / "old" / "gone.png").write_text("x")
-    (to / "notes.txt").write_text("kept")
-    copied = reproduce.publish(out, to)
-    assert sorted(p.relative_to(to).as_posix() for p in copied) == ["REPORT.md", "claims.md", "results.csv",
-                                                                    "square/qhat.png"]
-    assert not (to / "old" / "gone.png").exists() and (to / "notes.txt").read_text() == "kept"
-
-
 def test_the_readmes_tally_is_the_committed_claims():
     """The README quotes the committed report's verdict counts; a republished report that moves
     them must move the README too."""

@@ -92,7 +92,12 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str, judged: lis
     named = list(learners.values())
     episode_figures(named[:3], ["shaped", "report", "paper"], out / "square", title=title)
     episode_figures(named[3:], ["RBF (exact GP)", "manifold (exact GP)"], out / "square-kernels", title=title)
-    qhat = qhat_figure(runs["square-shaped"].path, out / "square", title) if "square-shaped" in runs else None
+    from trl_dgpq.collectors.evaluate import job_folders
+    shaped = runs.get("square-shaped")
+    if shaped is not None and job_folders(shaped.path):
+        qhat = qhat_figure(shaped.path, out / "square", title)
+    else:   # rebuilt from published data: the figure drawn from the checkpoint at the run, if kept
+        qhat = (out / "square" / "qhat.png") if (out / "square" / "qhat.png").is_file() else None
     rows = ["| run | seeds x episodes | episode 1 steps: IQM [95 % CI] over seeds | episodes 3+: each seed's median "
             "steps, IQM [95 % CI] | last 5 episodes: each seed's mean steps, IQM [95 % CI] | capped episodes (share) "
             "| kernel fits per seed (mean) | ms per seed-step |", "|---|---|---|---|---|---|---|---|"]

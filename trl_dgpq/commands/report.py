@@ -8,6 +8,11 @@ grouped by env. For each env, ``compare-<env>.png`` plots the env's measure agai
 environment steps and ``compare.md`` holds one table: steps to the domain's threshold
 and performance at a budget (``trl_dgpq/analysis/report.py`` says how each is counted).
 
+    trl-dgpq report results/report
+
+rebuilds a published reproduction (REPORT.md, claims.md, results.csv, summary.md and the
+figures drawn from episodes) from its per-episode data alone (``data/``; no runs/ folder).
+
 A run on seeds its preset was chosen on (a study's tuning or validation seeds, in the
 preset's provenance) or on seeds outside 0-99 is refused before anything is written:
 seeds that chose anything are never reported on. ``--unpublished`` reports on any seeds
@@ -39,6 +44,11 @@ def main(argv=None) -> int:
 
 
 def run(args) -> int:
+    from trl_dgpq.analysis import published
+    if len(args.runs) == 1 and published.is_published(args.runs[0]):   # a publication: rebuild it from its data
+        from trl_dgpq.commands.reproduce import rebuild
+        print("wrote", rebuild(Path(args.runs[0])), "and the rest from", Path(args.runs[0]) / published.DATA)
+        return 0
     if args.labels and len(args.labels) != len(args.runs):
         raise ValueError(f"{len(args.runs)} runs need {len(args.runs)} labels, got {len(args.labels)}")
     if args.window < 1 or (args.budget is not None and args.budget < 1):

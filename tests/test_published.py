@@ -1,0 +1,133 @@
+"""What the repository keeps of a reproduction: per-episode data from which every published file is
+rebuilt, with no runs/ folder."""
+import json
+import lzma
+import shutil
+from pathlib import Path
+from types import SimpleNamespace
+
+import pandas as pd
+import pytest
+
+from trl_dgpq.analysis import published
+from trl_dgpq.analysis.claims import Agrees, Claim, seeds_interval
+from trl_dgpq.collectors import runner, sweep
+from trl_dgpq.commands import report, reproduce
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def corridor_domain(monkeypatch, seeds=(0, 1)):
+    """One domain of two constant-agent experiments on the corridor, and a claim on the first."""
+    def measure(runs):
+        return seeds_interval(runs["c1"].df.groupby("seed")["return"].mean())
+    analysis = SimpleNamespace(
+        REPRODUCE=[("c1", dict(agent="constant")), ("c2", dict(agent="constant"))],
+        SCALES={"smoke": (len(seeds), 3)}, TITLE="The corridor", SUMMARY="Two constant agents.",
+        CLAIMS=[Claim("c/k", "this suite", "the return is about -3", Agrees(-3, 2, True), measure, ("c1",),
+                      decided_at=("smoke",))],
+        reproduce_section=lambda runs, out, label, title, judged: "## Corridor\n\n" + "\n".join(
+            j.bullet() for j in judged) + "\n")
+    monkeypatch.setattr(reproduce, "reproductions", lambda only=None: [
+        (SimpleNamespace(name="corridor", examples=lambda: ["corridor"]), analysis)])
+    return analysis
+
+
+def run_all(out):
+    planned = reproduce.experiments("smoke")
+    sweep.create(out, planned, jobs := sweep.plan(planned, out, None))
+    for job in jobs:
+        folder = runner.RunFolder(job.folder)
+        folder.path.mkdir(parents=True)
+        runner.start(job.config, folder, progress=False)
+        sweep.merge(out, job.experiment, [job])
+    return planned
+
+
+def test_publish_keeps_the_rows_and_rebuilds_every_file_from_them_alone(tmp_path, monkeypatch, capsys):
+    corridor_domain(monkeypatch)
+    out, to = tmp_path / "repro", tmp_path / "results" / "report"
+    run_all(out)
+    (to / "old").mkdir(parents=True)
+    (to / "old" / "gone.png").write_text("x")
+    (to / "notes.txt").write_text("kept")
+    reproduce.publish(out, to, "smoke")
+    assert not (to / "old" / "gone.png").exists() and (to / "notes.txt").read_text() == "kept"
+    # the rows: every (seed, episode) the runs wrote, floats to 7 digits, less cpu_s and us_per_step
+    kept = pd.read_csv(to / "data" / "c1.csv.xz")
+    ran = pd.read_csv(out / "c1" / "episodes.csv")
+    assert list(kept.columns) == [c for c in ran.columns if c not in ("cpu_s", "us_per_step")]
+    assert len(kept) == len(ran) == 6 and (kept["return"] == ran["return"]).all()
+    assert kept["wall_s"].to_numpy() == pytest.approx(ran["wall_s"].to_numpy(), rel=1e-6)
+    config = json.loads((to / "data" / "c1.json").read_text())
+    assert config["run"]["seeds"] == [0, 1] and config["jobs"][0]["commit"] == runner.provenance()["git"]["commit"]
+    stamp = published.manifest(to)
+    assert stamp["experiments"] == ["c1", "c2"] and stamp["scale"] == "smoke"
+    assert stamp["command"] == "python scripts/reproduce.py --scale smoke"
+    text = (to / "REPORT.md").read_text()
+    assert "Built from the per-episode data in `data/`" in text and "## Corridor" in text
+    assert (to / "summary.md").read_text().startswith("Every claim, judged by its rule on the published data of "
+                                                      "`python scripts/reproduce.py --scale smoke`")
+    assert "**The corridor.** Two constant agents." in (to / "summary.md").read_text()
+    assert (to / "sections" / "corridor.md").is_file()
+    # no runs/: the rebuild gives every file back, byte for byte
+    shutil.rmtree(out)
+    before = {p: p.read_bytes() for p in to.rglob("*") if p.is_file()}
+    for p in ("REPORT.md", "claims.md", "results.csv", "summary.md"):
+        (to / p).unlink()
+    capsys.readouterr()
+    assert report.main([str(to)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    assert {p: p.read_bytes() for p in to.rglob("*") if p.is_file()} == before
+
+
+def test_publish_refuses_runs_on_seeds_outside_the_reporting_ones(tmp_path, monkeypatch):
+    corridor_domain(monkeypatch, seeds=(0, 1))
+    out = tmp_path / "repro"
+    planned = run_all(out)
+    # the plan's seeds moved to a study's: the publication is refused before anything is written
+    monkeypatch.setattr(reproduce, "experiments", lambda scale, only=None: {
+        n: {**c, "run": {**c["run"], "seeds": [1000, 1001]}} for n, c in planned.items()})
+    with pytest.raises(ValueError, match="reporting seeds are 0-99"):
+        reproduce.publish(out, tmp_path / "to", "smoke")
+    assert not (tmp_path / "to").exists()
+
+
+def test_the_committed_publication_rebuilds_to_the_committed_files():
+    """results/report rebuilt from its own data/ for one domain (the square: seconds) gives the
+    committed section and rows."""
+    to = ROOT / "results" / "report"
+    if not published.is_published(to):
+        pytest.skip("results/report holds no published data yet")
+    stamp = published.manifest(to)
+    names = [n for n in stamp["experiments"] if n.startswith("square-")]
+    assert names, "the publication has the square"
+    from trl_dgpq.envs import domain
+    analysis = domain("square").analysis()
+    runs = {n: published.load(to, n) for n in names}
+    judged = [reproduce_judge(c, runs, stamp["scale"]) for c in analysis.CLAIMS]
+    from trl_dgpq.analysis import results
+    committed = pd.read_csv(to / "results.csv").set_index("experiment")
+    for name, run in runs.items():
+        row = results.row(name, run)
+        for column in ("median", "iqm", "iqm_low", "iqm_high"):
+            assert row[column] == pytest.approx(committed.loc[name, column], rel=1e-9), (name, column)
+    claims = (to / "claims.md").read_text()
+    for j in judged:
+        assert f"| {j.ours} | {j.verdict} |" in claims, j.claim.key
+
+
+def reproduce_judge(claim, runs, scale):
+    from trl_dgpq.analysis.claims import judge
+    return judge(claim, runs, scale)
+
+
+def test_the_published_data_stay_small():
+    """The data are compressed rows; the repository keeps them under a size said in the docs."""
+    to = ROOT / "results" / "report"
+    if not published.is_published(to):
+        pytest.skip("results/report holds no published data yet")
+    assert published.size(to) < 25 * 2 ** 20
+    for path in (to / "data").glob("*.csv.xz"):
+        with lzma.open(path, "rt") as f:
+            assert "cpu_s" not in f.readline()

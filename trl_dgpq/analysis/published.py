@@ -1,0 +1,104 @@
+"""What the repository keeps of a reproduction, so every published number can be recomputed.
+
+``reproduce --publish DIR`` writes, for every finished experiment, its per-episode rows and its
+config into ``DIR/data/`` and a manifest naming the run; then REPORT.md, claims.md, results.csv,
+summary.md and the figures drawn from episodes are *rebuilt from DIR/data alone*
+(``rebuild``), so what the pages quote and what the data say cannot drift apart.
+``trl-dgpq report DIR`` rebuilds them again, with no runs/ folder.
+
+    DIR/data/manifest.json      the scale, the domains, the plan's experiments (``planned``) and
+                                those finished and kept (``experiments``), the command, and when
+                                and at which commit the data were published
+    DIR/data/<experiment>.json  its resolved config (every seed), the versions and commit the
+                                sweep was made with, what of the env's model it uses, and each
+                                job's seeds and commit
+    DIR/data/<experiment>.csv.xz  every (seed, episode) row the runs wrote, floats to 7
+                                significant digits, less the columns no report reads (cpu_s,
+                                us_per_step: wall_s / steps)
+
+Four figures are drawn from a trained agent's checkpoint, not from episodes, and checkpoints are
+not kept: Q̂ over the square, the push animation, the F-16's trace and liquidation's holdings.
+They are copied as drawn at the run and kept by a rebuild (REPORT.md says so).
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from .runs import Run, read_csv_exact
+
+DATA, MANIFEST = "data", "manifest.json"
+DROPPED = ("cpu_s", "us_per_step")
+FLOAT_FORMAT = "%.7g"
+CHECKPOINT_FIGURES = ("square/qhat.png", "push/push.gif", "f16/f16_trace.png", "liquidation/holdings.png")
+
+
+def is_published(folder) -> bool:
+    return (Path(folder) / DATA / MANIFEST).is_file()
+
+
+def job_commits(folder: Path) -> list:
+    """[{seeds, commit, dirty}] of each job of a sweep experiment (or the run itself)."""
+    out = []
+    configs = sorted(folder.glob("jobs/*/config.json")) or [folder / "config.json"]
+    for config in configs:
+        recorded = json.loads(config.read_text())
+        git = recorded.get("git") or {}
+        out.append(dict(seeds=recorded.get("run", {}).get("seeds"), commit=git.get("commit"), dirty=git.get("dirty")))
+    return out
+
+
+def write_data(out: Path, to: Path, names: list, manifest: dict) -> list:
+    """The rows and configs of ``names`` (finished experiments of the sweep in ``out``) into
+    ``to/data``, replacing what it held, and the manifest; returns the paths written."""
+    data = to / DATA
+    data.mkdir(parents=True, exist_ok=True)
+    for old in list(data.glob("*.csv.xz")) + list(data.glob("*.json")):
+        old.unlink()
+    written = []
+    for name in names:
+        folder = out / name
+        df = read_csv_exact(folder / "episodes.csv").drop(columns=[c for c in DROPPED], errors="ignore")
+        rows = data / f"{name}.csv.xz"
+        df.to_csv(rows, index=False, float_format=FLOAT_FORMAT, compression={"method": "xz", "preset": 9})
+        config = json.loads((folder / "config.json").read_text())
+        config["jobs"] = job_commits(folder)
+        (data / f"{name}.json").write_text(json.dumps(config, indent=1, sort_keys=True) + "\n")
+        written += [rows, data / f"{name}.json"]
+    (data / MANIFEST).write_text(json.dumps({**manifest, "experiments": names}, indent=1) + "\n")
+    return written + [data / MANIFEST]
+
+
+def manifest(folder) -> dict:
+    return json.loads((Path(folder) / DATA / MANIFEST).read_text())
+
+
+def load(folder, name: str) -> Run:
+    """A published experiment as ``load_run`` gives a run folder's (``Run.path``: where its data lie)."""
+    data = Path(folder) / DATA
+    df = read_csv_exact(data / f"{name}.csv.xz").sort_values(["seed", "episode"], kind="stable")
+    df["env_steps"] = df.groupby("seed")["steps"].cumsum()
+    return Run(data / name, df.reset_index(drop=True), json.loads((data / f"{name}.json").read_text()))
+
+
+def commits_of(run: Run) -> list:
+    """Each job's commit of a run folder, a sweep experiment or a published experiment."""
+    jobs = run.config.get("jobs") if run.config else None
+    if jobs is None:
+        path = Path(run.path)
+        jobs = job_commits(path) if path.is_dir() else []
+    return [(j.get("commit") or "?")[:7] + ("-dirty" if j.get("dirty") else "") for j in jobs]
+
+
+def stamp(scale: str, only, command: str) -> dict:
+    """The manifest's description of a publication made now, at this code's commit."""
+    from trl_dgpq.collectors import runner
+    git = runner.provenance()["git"]
+    return dict(scale=scale, only=list(only or []), command=command, published=time.strftime("%Y-%m-%d %H:%M"),
+                commit=git["commit"], dirty=git["dirty"])
+
+
+def size(folder) -> int:
+    """Bytes of the published data."""
+    return sum(p.stat().st_size for p in (Path(folder) / DATA).iterdir())
