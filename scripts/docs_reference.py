@@ -1,8 +1,10 @@
 #!/usr/bin/env python
 """Write each command's ``--help`` into docs/commands.md, between its markers
 ``<!-- help: NAME -->`` and ``<!-- /help -->``, and into trl_dgpq/commands/help.json (what
-``--help`` prints before the heavy imports); ``--check`` only says whether the page is up to
-date (tests/test_docs.py runs that check, tests/test_commands.py the JSON's, in ``make test``).
+``--help`` prints before the heavy imports); and the published reproduction's summary
+(results/report/summary.md, written from its data) into README.md between
+``<!-- results: ... -->`` and ``<!-- /results -->``. ``--check`` only says whether they are up
+to date (tests/test_docs.py runs that check, tests/test_commands.py the JSON's, in ``make test``).
 
     python scripts/docs_reference.py            # after changing a command's options
     python scripts/docs_reference.py --check    # exit 1 and name the commands out of date
@@ -19,6 +21,15 @@ PAGE = ROOT / "docs" / "commands.md"
 COMMANDS = ("train", "evaluate", "plot", "report", "sweep", "reproduce", "tune")
 CORES = 2      # sweep's and reproduce's --workers default to the machine's cores: shown as N
 BLOCK = re.compile(r"(<!-- help: (\w+) -->\n)(.*?)(<!-- /help -->)", re.S)
+README, SUMMARY = ROOT / "README.md", ROOT / "results" / "report" / "summary.md"
+RESULTS = re.compile(r"(<!-- results: .*? -->\n)(.*?)(<!-- /results -->)", re.S)
+
+
+def with_summary(readme: str) -> str:
+    """README.md with its results block replaced by the published summary (unchanged without one)."""
+    if not SUMMARY.is_file():
+        return readme
+    return RESULTS.sub(lambda m: m.group(1) + SUMMARY.read_text().rstrip() + "\n" + m.group(3), readme)
 
 
 def help_text(name: str) -> str:
@@ -47,14 +58,18 @@ def main(argv=None) -> int:
     p.add_argument("--check", action="store_true", help="change nothing; exit 1 if the page is out of date")
     args = p.parse_args(argv)
     page = PAGE.read_text()
+    readme = README.read_text()
     if args.check:
         out = stale(page)
         if out:
             print(f"{PAGE.relative_to(ROOT)}: out of date for {', '.join(out)}; run python scripts/docs_reference.py",
                   file=sys.stderr)
-            return 1
-        return 0
+        if with_summary(readme) != readme:
+            print(f"README.md: its results block is not {SUMMARY.relative_to(ROOT)}; run python "
+                  "scripts/docs_reference.py", file=sys.stderr)
+        return 1 if out or with_summary(readme) != readme else 0
     PAGE.write_text(render(page))
+    README.write_text(with_summary(readme))
     from trl_dgpq.commands import early  # the same texts, answered before torch is imported
     early.main()
     return 0

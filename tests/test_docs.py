@@ -253,3 +253,55 @@ def test_readmes_links_reach_files_and_it_stays_short():
     for link in links:
         if not re.match(r"\w+://", link):
             assert (ROOT / link).exists(), f"README.md links to {link}, which does not exist"
+
+
+# ------------------------------------------------------------ numbers a reader can trace
+PUBLISHED = ROOT / "results" / "report"
+DOMAIN_PAGES = {"square": "square.md", "push": "push.md", "gym": "gym.md", "f16": "f16.md",
+                "liquidation": "liquidation.md"}
+
+
+def prose_pages():
+    """README.md and the docs' own pages (not the published report the site shows, docs/results)."""
+    return [p for p in PAGES if "results" not in p.relative_to(ROOT).parts[:2]]
+
+
+def test_pages_speak_of_the_suites_goals_in_words_not_issue_numbers():
+    """A reader cannot look an issue number up: README.md, the docs and the published report say what a
+    goal is instead."""
+    found = [f"{p.relative_to(ROOT)}: {line.strip()[:80]}" for p in prose_pages() + sorted(PUBLISHED.glob("*.md"))
+             for line in p.read_text().splitlines() if re.search(r"\bissues? \d+", line, re.I)]
+    assert not found, "\n".join(found)
+
+
+def test_the_readmes_results_are_the_published_summary():
+    """README.md's results block is results/report/summary.md, which the report writes from the
+    published data (scripts/docs_reference.py copies it in)."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import docs_reference
+    readme = (ROOT / "README.md").read_text()
+    block = docs_reference.RESULTS.search(readme)
+    assert block, "README.md has no <!-- results: ... --> block"
+    if (PUBLISHED / "summary.md").is_file():
+        assert docs_reference.with_summary(readme) == readme, "run python scripts/docs_reference.py"
+    # the section around the block says nothing else about runs: the block and links
+    section = readme.split("## Results in short", 1)[1].split("\n## ", 1)[0]
+    outside = section.replace(block.group(0), "")
+    assert not re.search(r"\d\.\d", outside), outside
+
+
+def test_each_domain_page_includes_its_published_section_and_dates_its_research_log():
+    """A domain's results are its section of the published report, included (not copied); what was
+    measured along the way is a research log whose entries each say when ("### 2026-11-26: ...") and
+    give the command."""
+    for name, page in DOMAIN_PAGES.items():
+        text = (ROOT / "docs" / "domains" / page).read_text()
+        assert f'--8<-- "{name}.md"' in text, f"{page} does not include its section of the report"
+        if "## Research log" in text:
+            log = text.split("## Research log", 1)[1].split("\n## ", 1)[0]
+            entries = re.split(r"\n### ", log)[1:]
+            assert entries, page
+            for entry in entries:
+                assert re.match(r"\d{4}-\d\d-\d\d", entry), f"{page}: an entry without its date: {entry[:60]}"
+                assert re.search(r"(python scripts/\w+\.py|trl-dgpq \w+|make \w+)", entry), \
+                    f"{page}: an entry without its command: {entry[:60]}"

@@ -158,6 +158,12 @@ def figures(runs, labels, out: Path, block: int = 10, last=None, title: str = ""
 
 
 # ------------------------------------------------------------ the reproduction (scripts/reproduce.py)
+TITLE = "Aircraft altitude hold (GWH14's second experiment)"
+# the README's paragraph on the domain: words, no numbers (those come from the data)
+SUMMARY = ("DGPQ at L_Q 5 and 10 and DQN in GWH14's formulation (a decision every 0.05 s), the same deciding "
+           "every 0.5 s (`flight-05`), and two variants that shape the reward by the LQR's value of the "
+           'linearised model (they use the model: counted apart), beside doing nothing, PD, the LQR and a random'
+           ' elevator.')
 # quick: 2 seeds x 50 episodes (DGPQ holds by episode ~20; at 4 x 100 the F-16 alone took ~15 of
 # quick's ~28 minutes on 2 loaded cores, issue 30)
 SCALES = {"smoke": (1, 3), "quick": (2, 50), "full": (10, 1000), "report": (10, 1000)}

@@ -21,6 +21,12 @@ TERMINATED = {
 
 
 # ------------------------------------------------------------ the reproduction (scripts/reproduce.py)
+TITLE = "DGPQ against DQN on gymnasium's classic control"
+# the README's paragraph on the domain: words, no numbers (those come from the data)
+SUMMARY = ('CartPole, MountainCar and Acrobot: each learner on its default preset and on the `tuned` one its own'
+           ' study wrote (the same trial budget, env-step budget and tuning seeds for both, validated on other '
+           "seeds), judged by rliable's probability that a DGPQ seed needs fewer env steps to the threshold than"
+           " a DQN seed; and DQN with rl-baselines3-zoo's settings at the zoo's budgets.")
 # DGPQ against DQN (issues 11, 27): each learner on its default preset and on the `tuned` one a
 # study wrote (where there is one), at the comparison's budgets; and DQN with rl-baselines3-zoo's
 # settings at the zoo's own budgets (the "zoo" preset; bench_parity.py runs SB3's side of it).

@@ -219,6 +219,11 @@ def holdings_figure(runs, labels, out: Path, episodes: int = 10, title: str = ""
 
 
 # ------------------------------------------------------------ the reproduction (scripts/reproduce.py)
+TITLE = "Optimal liquidation (the seed report's 4.4; AC00)"
+# the README's paragraph on the domain: words, no numbers (those come from the data)
+SUMMARY = ("The Almgren-Chriss closed forms checked by simulation, and DGPQ, DDPG, TD3 and the course's own DDPG"
+           ' against the optimal schedule and TWAP; the `impact` reward and the utility-ratio reward use the AC '
+           'model (variants, counted apart).')
 # (seeds, episodes) at each scale; an experiment may name its own as a third item
 # "report": the seed report's own length, 11,000 episodes. DDPG gets fewer at quick scale; the
 # seed report's gamma = 0.01 DDPG runs (its Figure 6 sets 0.01 beside 0.99) only at report scale.

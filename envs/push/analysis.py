@@ -67,6 +67,10 @@ def table(runs, labels, last: int) -> str:
 
 
 # ------------------------------------------------------------ the reproduction (scripts/reproduce.py)
+TITLE = "Block pushing (the seed report's 4.3)"
+# the README's paragraph on the domain: words, no numbers (those come from the data)
+SUMMARY = ('DGPQ with an RBF and with the manifold kernel pushing a block in pybullet, beside a scripted oracle;'
+           " the seed report's code never stepped the robot, so there is no number to compare.")
 # (seeds, episodes) at each scale; an experiment may name its own as a third item
 SCALES = {"smoke": (1, 3), "quick": (6, 60), "full": (10, 100), "report": (10, 100)}
 REPRODUCE = [

@@ -22,6 +22,11 @@ MODEL_KNOWLEDGE = {"env.reward=shaped": "reward: the distance to the goal (its p
 SHAPED = MODEL_KNOWLEDGE["env.reward=shaped"]
 
 # ------------------------------------------------------------ the reproduction (scripts/reproduce.py)
+TITLE = "The square (GWH14's first experiment; the seed report's 4.1)"
+# the README's paragraph on the domain: words, no numbers (those come from the data)
+SUMMARY = ("DGPQ on GWH14's own reward (-1 per step, `paper`), on the seed report's shaped reward (which tells "
+           "the learner where the goal is: a variant using the model) and with the seed report's own settings, "
+           'an RBF against a manifold kernel, and a random walk on each reward as the trivial baseline.')
 # (seeds, episodes) at each scale; an experiment may name its own as a third item
 SCALES = {"smoke": (1, 3), "quick": (6, 50), "full": (10, 100), "report": (10, 100)}
 REPRODUCE = [

@@ -163,13 +163,19 @@ def write_report(out: Path, scale: str, wall: float, only=None) -> Path:
         if len(runs) == len(names):
             mine = [judge(c, runs, scale, planned) for c in getattr(analysis, "CLAIMS", [])]
             section = analysis.reproduce_section(runs, out, scale_label(scale, only), title, mine)
-            (out / "sections" / f"{d.name}.md").write_text(section.replace("](", f"](../").replace("](../http", "](http"))
+            # the docs site's include of this section (mkdocs.yml: a page under docs/domains/ includes it)
+            (out / "sections" / f"{d.name}.md").write_text(section.replace("](", "](../results/"))
             sections.append(section)
             judged += mine
             summaries.append(domain_summary(d, analysis, mine))
         else:
             sections.append(f"## {d.name}: not finished\n\n{len(runs)} of {len(names)} experiments have finished; "
                             f"waiting for {', '.join(n for n in names if n not in runs)}.\n")
+    for d, _ in reproductions():   # the docs include every domain's section: say where one is not published here
+        if not (out / "sections" / f"{d.name}.md").is_file():
+            (out / "sections" / f"{d.name}.md").write_text(
+                f"*{d.name}: not in this report (`{command}`): its experiments have not all finished, or it was "
+                "not among the domains run.*\n")
     summary = ("## Claims, and whether they reproduce\n\nEach claim of GWH14, the seed report, AC00 (the model's "
                "closed form) and this suite's own goals, with its rule, fixed before the run, and what this run "
                "measured (`trl_dgpq/analysis/claims.py` says how each kind is judged; a claim judged on a run that "
