@@ -93,6 +93,7 @@ def test_publish_refuses_runs_on_seeds_outside_the_reporting_ones(tmp_path, monk
     assert not (tmp_path / "to").exists()
 
 
+@pytest.mark.full_bootstraps
 def test_the_committed_publication_rebuilds_to_the_committed_files():
     """results/report rebuilt from its own data/ for one domain (the square: seconds) gives the
     committed section and rows."""

