@@ -322,3 +322,19 @@ def test_a_runs_config_json_records_what_of_the_model_it_uses():
     assert flat["git"] and flat["versions"]
     assert recorded(resolve_config(env="liquidation", agent="ddpg", preset="shortfall", seeds=[0],
                                    episodes=1))["model_knowledge"] == []
+
+
+def test_liquidations_table_groups_learners_by_the_reward_they_learned_from():
+    """Shortfall first, then the rewards that use the model, each marked; a run's ratio is paired with
+    the optimum's on the same (seed, episode)."""
+    from trl_dgpq.envs.liquidation.analysis import comparison_table
+    row = lambda agent, reward, cost: run(episodes([cost, cost], "ac_cost", implementation_shortfall=cost,  # noqa
+                                                   wall_s=0.1), env="liquidation", agent=agent, reward=reward)
+    runs = [row("dgpq", "impact", 300.0), row("ac-optimal", "shortfall", 100.0), row("ddpg", "shortfall", 200.0)]
+    for r in runs:
+        r.config["agent"]["gamma"] = None if r.agent == "ac-optimal" else 1.0
+    text = comparison_table(runs, ["dgpq-flat", "ac-optimal", "ddpg"], last=10)
+    body = [line for line in text.splitlines() if line.startswith("| ") and "---" not in line][1:]
+    assert [line.split(" | ")[:2] for line in body] == [["| ac-optimal", "shortfall (uses the model)"],
+                                                        ["| ddpg", "shortfall"], ["| dgpq-flat", "impact (uses the model)"]]
+    assert "| 2.000 |" in body[1] and "| 3.000 |" in body[2]

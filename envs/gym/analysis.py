@@ -113,7 +113,7 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str, judged: lis
              "`scripts/bench_parity.py`).")):
         if not group:
             continue
-        written, text = report([r.path for r in group.values()], list(group), out / folder)
+        written, text = report(list(group.values()), list(group), out / folder)
         text = text.split("\n", 1)[1].replace("\n## ", "\n### ").replace("](profiles.png)",
                                                                          f"]({folder}/profiles.png)")
         figures = " ".join(f"![{p.stem}]({folder}/{p.name})" for p in written

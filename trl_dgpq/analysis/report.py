@@ -35,7 +35,7 @@ import numpy as np
 import pandas as pd
 
 from . import results
-from .runs import load_run
+from .runs import Run, load_run
 from .stats import iqm, normalised, oriented, probability_of_improvement, profiles
 from .summary import at_budget, curve, kernel_fits_per_seed, ms_per_seed_step, steps_to_threshold
 
@@ -159,7 +159,7 @@ def report(runs, labels, out: Path, budget=None, window: int = WINDOW, check=Non
     import matplotlib.pyplot as plt
 
     from .figures import save
-    loaded = [load_run(r) for r in runs]
+    loaded = [r if isinstance(r, Run) else load_run(r) for r in runs]   # run folders, or runs loaded already
     for run in loaded if check is not None else ():
         check(run)
     labels = labels or default_labels(loaded)
