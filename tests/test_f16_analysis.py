@@ -165,6 +165,14 @@ def test_trace_figure_draws_each_flights_altitude_and_elevator(tmp_path, monkeyp
     fig = saved_figures["f16_trace.png"]
     assert squashed(fig.axes[0].get_title()) == "one episode after training, the same noise for all"
     assert fig._suptitle is None
+    # without the checkpoint (a publication rebuilt from its data): drawn again from what was kept
+    seen.clear()
+    (tmp_path / "f16_trace.png").unlink()
+    assert analysis.trace_figure(None, tmp_path) == tmp_path / "f16_trace.png" and seen == []
+    again = saved_figures["f16_trace.png"].axes[0].get_lines()
+    for line, f in zip(again, FLIGHTS.values()):
+        np.testing.assert_array_equal(line.get_ydata(), f["h"])
+    assert analysis.trace_figure(None, tmp_path / "elsewhere") is None      # nothing kept there: no figure
 
 
 # ------------------------------------------------------------ the reward figure
@@ -262,9 +270,11 @@ def test_figures_draw_the_reward_and_the_trace_of_the_first_learner_with_a_check
     assert runs_ is runs and labels_ is labels and out == tmp_path / "out" and kw == dict(block=10, title="T")
     assert trace == ("trace", (tmp_path / "lq5", tmp_path / "out", "T"), dict(label="lq5"))
     calls.clear()
-    assert analysis.figures(runs[:2], labels[:2], tmp_path / "out", block=4) == ["r.png"]    # no learner's checkpoint
-    ((_, (runs_, labels_, out), kw),) = calls
+    # no learner's checkpoint: the trace from what an earlier drawing kept, if any (trace_figure says None if not)
+    assert analysis.figures(runs[:2], labels[:2], tmp_path / "out", block=4) == ["r.png", "t.png"]
+    (_, (runs_, labels_, out), kw), trace = calls
     assert [r.agent for r in runs_] == ["pd", "dqn"] and labels_ == ["pd", "dqn"] and kw == dict(block=4, title="")
+    assert trace == ("trace", (None, tmp_path / "out", ""), dict(label=""))
 
 
 # ------------------------------------------------------------ the report's row and section
@@ -339,7 +349,7 @@ def test_the_report_section_against_gwh14_by_hand(tmp_path, monkeypatch):
         "| dgpq-lq10 | 1 x 1000 | -200 | -200 | -113 (901-1000) | 0 of 1 | 0.50 |\n"
         "| pd | 1 x 20 | -37 | - (not run to 200) | -37 (11-20) | 1 of 1, median 10 | 0.25 |\n\n"
         "- GWH14: a claim (the source gives no number). Ours: ours -- **agrees**.\n\n"
-        "![reward](f16/f16_reward.png) ![trace](f16/f16_trace.png)\n")
+        "![reward](f16/f16_reward.png)\n")      # no trace drawn: none linked
 
 
 # ------------------------------------------------------------ optimism (issue 28)

@@ -132,3 +132,18 @@ def test_the_published_data_stay_small():
     for path in (to / "data").glob("*.csv.xz"):
         with lzma.open(path, "rt") as f:
             assert "cpu_s" not in f.readline()
+
+
+def test_a_checkpoints_figure_is_drawn_again_from_what_it_kept(tmp_path, monkeypatch):
+    """Q̂ over the square: drawn once from a (faked) checkpoint, kept as plain data, drawn again
+    byte for byte without it; with neither, no figure."""
+    from trl_dgpq.envs.square import analysis as sq
+    q = [[[0.1 * (i + j + a) for a in range(4)] for j in range(3)] for i in range(3)]
+    drawn = dict(q=q, names=["N", "S", "E", "W"], pairs=[[[0.1, 0.2]], [], [[0.5, 0.5], [0.6, 0.6]], []],
+                 path=[[0.0, 0.0], [0.1, 0.0], [0.1, 0.1]], goal=[1.0, 1.0], radius=0.15, seed=3, run="square-shaped")
+    monkeypatch.setattr(sq, "qhat_drawn", lambda folder: drawn)
+    first = sq.qhat_figure(tmp_path / "run", tmp_path, "t").read_bytes()
+    monkeypatch.setattr(sq, "qhat_drawn", lambda folder: pytest.fail("the checkpoint was read"))
+    (tmp_path / "qhat.png").unlink()
+    assert sq.qhat_figure(None, tmp_path, "t").read_bytes() == first
+    assert sq.qhat_figure(None, tmp_path / "none", "t") is None

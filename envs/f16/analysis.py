@@ -74,16 +74,27 @@ def flights(folder: Path) -> dict:
     return out
 
 
-def trace_figure(folder: Path, out: Path, title: str = "", label: str = "") -> Path:
+def trace_figure(folder, out: Path, title: str = "", label: str = ""):
     """f16_trace.png: altitude error and elevator over one episode, the learner against PD
-    and LQR (``flights``)."""
+    and LQR (``flights``), and what it draws as f16_trace.json.xz. With ``folder`` None (no
+    checkpoint: a publication rebuilt from its data), drawn from that file (None if there is none)."""
     import matplotlib.pyplot as plt
 
-    from trl_dgpq.analysis.figures import save
+    from trl_dgpq.analysis.figures import load_drawn, save, save_drawn
+    data = out / "f16_trace.json.xz"
+    if folder is not None:
+        drawn = {name: {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in f.items()}
+                 for name, f in flights(folder).items()}
+        save_drawn(data, dict(label=label, flights=drawn))
+    got = load_drawn(data)
+    if got is None:
+        return None
+    label = got["label"]
     fig, (ax, bx) = plt.subplots(2, 1, figsize=(6.4, 5.2), sharex=True)
-    for i, (name, f) in enumerate(flights(folder).items()):
-        ax.plot(f["t"], f["h"], lw=1.2, label=f"{name}: episode reward {f['reward']:.0f}")
-        bx.step(f["t"][:-1], f["elevator"] + 0.08 * (i - 1), where="post", lw=1.0, label=name)
+    for i, (name, f) in enumerate(got["flights"].items()):
+        t, elevator = np.asarray(f["t"]), np.asarray(f["elevator"])
+        ax.plot(t, f["h"], lw=1.2, label=f"{name}: episode reward {f['reward']:.0f}")
+        bx.step(t[:-1], elevator + 0.08 * (i - 1), where="post", lw=1.0, label=name)
     ax.axhline(0, color="k", lw=0.6)
     ax.set_ylabel("altitude error h - h_d (ft)")
     ax.legend(fontsize=8)
@@ -152,9 +163,9 @@ def figures(runs, labels, out: Path, block: int = 10, last=None, title: str = ""
     written = [reward_figure(runs, labels, out, block=block, title=title)]
     from trl_dgpq.collectors.evaluate import job_folders
     learner = next(((r, l) for r, l in zip(runs, labels) if r.agent not in SCRIPTED and job_folders(r.path)), None)
-    if learner is not None:
-        written.append(trace_figure(learner[0].path, out, title, label=learner[1]))
-    return written
+    folder, label = (learner[0].path, learner[1]) if learner else (None, "")
+    trace = trace_figure(folder, out, title, label=label)     # without a checkpoint: from what was drawn, if kept
+    return written + ([trace] if trace else [])
 
 
 # ------------------------------------------------------------ the reproduction (scripts/reproduce.py)
@@ -357,7 +368,8 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str, judged: lis
     sentences = [j.bullet() for j in judged]
     return (f"## Aircraft altitude hold (GWH14's second experiment) -- Figure 3\n\n{label}\n\n"
             + "\n".join(rows) + "\n\n" + "\n".join(sentences)
-            + "\n\n![reward](f16/f16_reward.png) ![trace](f16/f16_trace.png)\n"
+            + "\n\n![reward](f16/f16_reward.png)" + (" ![trace](f16/f16_trace.png)" if (out / "f16" / "f16_trace.png")
+                                                      .is_file() else "") + "\n"
             + "".join("\n" + part(p, v, out, title) for p, v in variants.items() if v))
 
 

@@ -197,27 +197,29 @@ def holdings(folder: Path, episodes: int = 10):
 
 def holdings_figure(runs, labels, out: Path, episodes: int = 10, title: str = ""):
     """holdings.png: each learner's holdings over the trades (median and IQR over seeds and
-    evaluation episodes, ``holdings``) beside the AC optimum and TWAP; None if no run has a
-    checkpoint."""
+    evaluation episodes, ``holdings``) beside the AC optimum and TWAP, and what it draws as
+    holdings.json.xz; with no checkpoint (a publication rebuilt from its data) drawn from that
+    file; None if there is neither."""
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from trl_dgpq.analysis.figures import save
+    from trl_dgpq.analysis.figures import load_drawn, save, save_drawn
     from trl_dgpq.collectors.evaluate import job_folders
+    data = out / "holdings.json.xz"
+    learners = [(run, label) for run, label in zip(runs, labels)
+                if run.agent not in ("ac-optimal", "twap") and job_folders(run.path)]
+    if learners:
+        save_drawn(data, {label: holdings(run.path, episodes).tolist() for run, label in learners})
+    got = load_drawn(data)
+    if not got:
+        return None
     model = ACModel.from_config(from_dict(LiquidationConfig, runs[0].config["env"]))
     k = np.arange(model.trades + 1)
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    drawn = 0
-    for run, label in zip(runs, labels):
-        if run.agent in ("ac-optimal", "twap") or not job_folders(run.path):
-            continue
-        h = holdings(run.path, episodes)
+    for label, h in got.items():
+        h = np.asarray(h)
         line, = ax.plot(k, np.median(h, 0), lw=1.4, label=f"{label} ({h.shape[0]} evaluation episodes)")
         ax.fill_between(k, *np.quantile(h, [0.25, 0.75], axis=0), color=line.get_color(), alpha=0.2, lw=0)
-        drawn += 1
-    if not drawn:
-        plt.close(fig)
-        return None
     ax.plot(k, model.holdings(1.0).numpy(), "k--", lw=1.2, label="Almgren-Chriss optimum")
     ax.plot(k, 1 - k / model.trades, ":", color="0.4", lw=1.2, label="TWAP")
     ax.set_xlabel("trade k")

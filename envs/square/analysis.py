@@ -99,10 +99,8 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str, judged: lis
     episode_figures(named[3:], ["RBF (exact GP)", "manifold (exact GP)"], out / "square-kernels", title=title)
     from trl_dgpq.collectors.evaluate import job_folders
     shaped = runs.get("square-shaped")
-    if shaped is not None and job_folders(shaped.path):
-        qhat = qhat_figure(shaped.path, out / "square", title)
-    else:   # rebuilt from published data: the figure drawn from the checkpoint at the run, if kept
-        qhat = (out / "square" / "qhat.png") if (out / "square" / "qhat.png").is_file() else None
+    # rebuilt from published data (no checkpoint): drawn from what the run's figure showed, if kept
+    qhat = qhat_figure(shaped.path if shaped is not None and job_folders(shaped.path) else None, out / "square", title)
     rows = ["| run | seeds x episodes | episode 1 steps: IQM [95 % CI] over seeds | episodes 3+: each seed's median "
             "steps, IQM [95 % CI] | last 5 episodes: each seed's mean steps, IQM [95 % CI] | capped episodes (share) "
             "| kernel fits per seed (mean) | ms per seed-step |", "|---|---|---|---|---|---|---|---|"]
@@ -149,33 +147,51 @@ def greedy_path(env, agent, row: int = 0) -> np.ndarray:
     return np.array(path)
 
 
-def qhat_figure(folder: Path, out: Path, title: str = "") -> Optional[Path]:
-    """qhat.png: Q̂ of each action over the square for the first seed of the DGPQ run in
-    ``folder`` (its last checkpoint), its stored pairs as dots, the goal, and one greedy
-    evaluation episode; beside them the greedy value max_a Q̂ and the greedy action.
-    None for an agent without Q̂."""
-    import matplotlib.pyplot as plt
-
-    from trl_dgpq.analysis.figures import save
+def qhat_drawn(folder: Path) -> Optional[dict]:
+    """What qhat.png shows of the DGPQ run in ``folder`` (its last checkpoint), as plain data: Q̂ on
+    a grid, each action's stored pairs, a greedy evaluation episode, the goal. None for an agent
+    without Q̂ (or one that scales its states: positions are Q̂'s states as they are)."""
     from trl_dgpq.collectors.evaluate import jobs, restore
     config, env, agent, _ = restore(jobs(folder)[0])
-    if not hasattr(agent, "qhat") or agent.scale is not None:  # positions are Q̂'s states as they are
+    if not hasattr(agent, "qhat") or agent.scale is not None:
         return None
     xs, q = qhat_grid(agent)
-    names = env.action_names
-    seed = config["run"]["seeds"][0]
-    path = greedy_path(env, agent)
-    goal, radius = env.cfg.goal, env.cfg.goal_radius
+    pairs = []
+    for a in range(len(env.action_names)):
+        valid = np.isfinite(agent.qhat.mu[0, a].numpy())
+        pairs.append(agent.qhat.s[0, a].numpy()[valid].tolist())
+    return dict(q=q.tolist(), names=list(env.action_names), pairs=pairs, path=greedy_path(env, agent).tolist(),
+                goal=list(env.cfg.goal), radius=env.cfg.goal_radius, seed=config["run"]["seeds"][0], run=folder.name)
+
+
+def qhat_figure(folder: Optional[Path], out: Path, title: str = "") -> Optional[Path]:
+    """qhat.png: Q̂ of each action over the square for the first seed of the DGPQ run in
+    ``folder`` (``qhat_drawn``), its stored pairs as dots, the goal, and one greedy evaluation
+    episode; beside them the greedy value max_a Q̂ and the greedy action; what it draws is kept as
+    qhat.json.xz. With ``folder`` None (a publication rebuilt from its data), drawn from that file.
+    None for an agent without Q̂, or with neither."""
+    import matplotlib.pyplot as plt
+
+    from trl_dgpq.analysis.figures import load_drawn, save_drawn
+    data = out / "qhat.json.xz"
+    if folder is not None:
+        drawn = qhat_drawn(folder)
+        if drawn is None:
+            return None
+        save_drawn(data, drawn)
+    got = load_drawn(data)
+    if got is None:
+        return None
+    q, names, path = np.asarray(got["q"]), got["names"], np.asarray(got["path"])
     panels = len(names) + 2
     fig, axes = plt.subplots(1, panels, figsize=(3.1 * panels, 3.3), constrained_layout=True)
     lo, hi = float(np.nanmin(q)), float(np.nanmax(q))
     extent = (0, 1, 0, 1)
     for a, (ax, name) in enumerate(zip(axes, names)):
         im = ax.imshow(q[:, :, a], origin="lower", extent=extent, vmin=lo, vmax=hi, cmap="viridis")
-        valid = np.isfinite(agent.qhat.mu[0, a].numpy())
-        pts = agent.qhat.s[0, a].numpy()[valid]
+        pts = np.asarray(got["pairs"][a]).reshape(-1, 2)
         ax.plot(pts[:, 0], pts[:, 1], ".", color="w", ms=2, alpha=0.7)
-        ax.set_title(f"Q̂({name}): {valid.sum()} pairs", fontsize=9)
+        ax.set_title(f"Q̂({name}): {len(pts)} pairs", fontsize=9)
     fig.colorbar(im, ax=axes[len(names) - 1], shrink=0.8)
     greedy = axes[-2].imshow(q.max(-1), origin="lower", extent=extent, cmap="viridis")
     axes[-2].set_title("greedy value max_a Q̂", fontsize=9)
@@ -187,13 +203,13 @@ def qhat_figure(folder: Path, out: Path, title: str = "") -> Optional[Path]:
     axes[-1].legend(fontsize=7, loc="lower right")
     axes[-1].set_title("greedy action (ties: lowest index)", fontsize=9)
     for ax in axes:
-        ax.add_patch(plt.Circle(goal, radius, fill=False, color="r", lw=1.2))
+        ax.add_patch(plt.Circle(got["goal"], got["radius"], fill=False, color="r", lw=1.2))
         ax.plot(path[:, 0], path[:, 1], "-", color="r", lw=1.0)
         ax.set_xlim(0, 1)
         ax.set_ylim(0, 1)
         ax.set_xlabel("x")
     axes[0].set_ylabel("y")
-    fig.suptitle(f"{title + ': ' if title else ''}seed {seed} after {folder.name}'s training; dots: Q̂'s pairs; "
+    fig.suptitle(f"{title + ': ' if title else ''}seed {got['seed']} after {got['run']}'s training; dots: Q̂'s pairs; "
                  f"red: the goal and a greedy evaluation episode ({len(path) - 1} steps)", fontsize=9)
     fig.savefig(out / "qhat.png", dpi=110)
     plt.close(fig)

@@ -39,6 +39,26 @@ def fit_titles(fig) -> None:
             text.set_text("\n".join(textwrap.fill(line, n, break_long_words=False) for line in lines))
 
 
+def save_drawn(path: Path, data: dict) -> Path:
+    """What a figure drawn from a checkpoint shows, as plain data beside it (``<figure>.json.xz``):
+    checkpoints are not published, so a rebuild draws the figure again from this."""
+    import json
+    import lzma
+    with lzma.open(path, "wt") as f:
+        json.dump(data, f, separators=(",", ":"))
+    return path
+
+
+def load_drawn(path: Path):
+    """``save_drawn``'s data, or None where there is none."""
+    import json
+    import lzma
+    if not Path(path).is_file():
+        return None
+    with lzma.open(path, "rt") as f:
+        return json.load(f)
+
+
 def save(fig, path: Path, title: str = "") -> Path:
     if title:
         fig.suptitle(title, fontsize=9)

@@ -17,8 +17,10 @@ summary.md and the figures drawn from episodes are *rebuilt from DIR/data alone*
                                 us_per_step: wall_s / steps)
 
 Four figures are drawn from a trained agent's checkpoint, not from episodes, and checkpoints are
-not kept: Q̂ over the square, the push animation, the F-16's trace and liquidation's holdings.
-They are copied as drawn at the run and kept by a rebuild (REPORT.md says so).
+not kept. Three keep what they draw as plain data beside them (``figures.save_drawn``: Q̂ over
+the square, the F-16's trace, liquidation's holdings), which is published and from which a
+rebuild draws them again; the push animation (pybullet's camera frames) is kept as drawn at the
+run (REPORT.md says so).
 """
 from __future__ import annotations
 
@@ -31,7 +33,8 @@ from .runs import Run, read_csv_exact
 DATA, MANIFEST = "data", "manifest.json"
 DROPPED = ("cpu_s", "us_per_step")
 FLOAT_FORMAT = "%.7g"
-CHECKPOINT_FIGURES = ("square/qhat.png", "push/push.gif", "f16/f16_trace.png", "liquidation/holdings.png")
+# what a checkpoint drew: the data three figures are drawn from, and the animation as it was drawn
+CHECKPOINT_FIGURES = ("square/qhat.json.xz", "push/push.gif", "f16/f16_trace.json.xz", "liquidation/holdings.json.xz")
 
 
 def is_published(folder) -> bool:

@@ -132,9 +132,9 @@ def write_report(out: Path, scale: str, wall: float, only=None) -> Path:
         head = (f"# Reproduction of the seed report ({scale} scale)\n\nBuilt from the per-episode data in "
                 f"`data/` by `trl-dgpq report {out.as_posix()}`: the runs of `{stamp['command']}`, published "
                 f"{stamp['published']} at commit {stamp['commit']}{' (dirty)' if stamp['dirty'] else ''}. Every "
-                "number below is computed from those files; the figures of a trained agent (Q̂ over the square, the "
-                "push animation, the F-16's trace, liquidation's holdings) are drawn from its checkpoint, which is "
-                "not kept, and are as drawn at the run.\n\n")
+                "number and figure below is computed from those files (a trained agent's figures from what its "
+                "checkpoint showed, kept beside them: Q̂ over the square, the F-16's trace, liquidation's holdings), "
+                "but the push animation, kept as drawn at the run.\n\n")
     else:
         prov = runner.provenance()
         planned = experiments(scale, only)
@@ -252,7 +252,7 @@ def publish(out: Path, to: Path, scale: str, only=None) -> list:
     for name in names:     # seeds that chose a preset are never published (selection.py)
         check_reportable(planned[name], name)
     if to.exists():
-        for old in [f for pattern in ("*.md", "*.csv", "*.png", "*.gif") for f in to.rglob(pattern)
+        for old in [f for pattern in ("*.md", "*.csv", "*.png", "*.gif", "*.json.xz") for f in to.rglob(pattern)
                     if published.DATA not in f.relative_to(to).parts]:
             old.unlink()
     written = published.write_data(out, to, names, {**published.stamp(scale, only, (
