@@ -657,3 +657,33 @@ def test_a_validated_study_writes_the_best_trial_on_the_validation_seeds(tmp_pat
     assert entry["preset"]["agent"]["lr"] == 0.003 and entry["provenance"]["trial"] == 1
     assert entry["provenance"]["value"] == 20.0
     assert entry["provenance"]["validation"] == {"seeds": [1005, 1006], "value": 30.0, "trials": [0, 1]}
+
+
+def test_a_study_never_replaces_another_studys_preset_unless_forced(tmp_path, monkeypatch, capsys):
+    """A 1-trial study writing 'tuned' over a preset another study wrote is refused, naming what it
+    would replace; --force replaces it and says what went; the same study may rewrite its own."""
+    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+    first = Study.open(tmp_path / "first", None, {"env": "square", "agent": "dqn", "episodes": "4"}, {})
+    first.load().add_trial(optuna.trial.create_trial(value=7.0, user_attrs={"settings": {"lr": 0.004}}))
+    first.write_preset()
+    first.write_preset()                                                    # its own: rewritten quietly
+    other = tmp_path / "other"
+    second = Study.open(other, None, {"env": "square", "agent": "dqn", "episodes": "4"}, {})
+    second.load().add_trial(optuna.trial.create_trial(value=5.0, user_attrs={"settings": {"lr": 0.001}}))
+    with pytest.raises(SystemExit) as exc:
+        tune.main(["--out", str(other), "--trials", "1", "--write-preset"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "would replace preset 'tuned' of dqn on square, written by study 'first'" in err
+    assert "--force" in err
+    assert resolve_config(env="square", agent="dqn", preset="tuned")["agent"]["lr"] == 0.004      # untouched
+    assert tune.main(["--out", str(other), "--trials", "1", "--write-preset", "--force"]) == 0
+    assert "replaced preset 'tuned' of dqn on square, written by study 'first'" in capsys.readouterr().out
+    assert resolve_config(env="square", agent="dqn", preset="tuned")["agent"]["lr"] == 0.001
+
+
+def test_a_presets_provenance_records_its_study_relative_to_the_checkout():
+    from trl_dgpq.study import portable
+    root = Path(__file__).resolve().parent.parent
+    assert portable(f"sqlite:///{root / 'runs/tune/x/study.db'}") == "sqlite:///runs/tune/x/study.db"
+    assert portable("sqlite:////elsewhere/study.db") == "sqlite:////elsewhere/study.db"
+    assert portable("postgresql://host/db") == "postgresql://host/db"

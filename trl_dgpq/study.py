@@ -543,15 +543,32 @@ class Study:
         return (f"best: trial {best.number}, {self.objective.name} {best.value:.6g} ({better} is better, IQM over "
                 f"{len(seeds)} seeds) with {shown(best.user_attrs['settings'])}; {tally}")
 
-    def write_preset(self, name: Optional[str] = None) -> Tuple[str, Path]:
+    def replaces(self, name: str) -> Optional[str]:
+        """What writing preset ``name`` would replace, in words, if another study wrote it (None: no
+        preset of that name, or one this study wrote)."""
+        from trl_dgpq.presets import tuned_entries
+        run = self.config["run"]
+        old = (tuned_entries(run["env"]).get(run["agent"]) or {}).get(name)
+        prov = (old or {}).get("provenance") or {}
+        if old is None or prov.get("study_name") == self.name:
+            return None
+        return (f"preset {name!r} of {run['agent']} on {run['env']}, written by study {prov.get('study_name', '?')!r} "
+                f"({prov.get('trials', '?')} trials on seeds {prov.get('seeds', '?')}, {prov.get('date', '?')})")
+
+    def write_preset(self, name: Optional[str] = None, force: bool = False) -> Tuple[str, Path]:
         """The best trial as preset ``name`` of this env and agent (by default ``tuned``, or
         ``<preset>-tuned`` if the study ran on another than the env's default): the preset the
         study ran on, the settings given to it and the trial's over it, with where it came from.
-        Returns the name and the file written."""
+        A preset another study wrote is replaced only with ``force`` (ValueError saying what it
+        is otherwise). Returns the name and the file written."""
         from trl_dgpq.collectors.runner import provenance
         run = self.config["run"]
         name = name or tuned_name(run["env"], run["preset"])
         check_preset_name(run["env"], run["agent"], name)
+        other = self.replaces(name)
+        if other and not force:
+            raise ValueError(f"this study would replace {other}: write it under another name (--write-preset NAME), "
+                             "or add --force to replace it")
         study = self.load()
         ended = self.ended(study.get_trials(deepcopy=False))
         if not ended["complete"]:
@@ -562,7 +579,7 @@ class Study:
         sections = {s: {**base[s], **{k: self.value_of(s, k) for k in given[s]}} for s in ("env", "agent")}
         sections["agent"].update(best.user_attrs["settings"])
         return name, write_tuned(run["env"], run["agent"], name, sections, dict(
-            study=self.url, study_name=self.name, trial=best.number, trials=sum(map(len, ended.values())),
+            study=portable(self.url), study_name=self.name, trial=best.number, trials=sum(map(len, ended.values())),
             objective=self.objective.name, window=self.tune.window, direction=self.objective.direction,
             value=best.value,
             base_preset=run["preset"], budget=dict(episodes=run["episodes"], env_steps=run["env_steps"]),
@@ -579,6 +596,18 @@ class Study:
         for p in find_leaf(cls, key).path:
             node = node[p]
         return node
+
+
+def portable(url: str) -> str:
+    """A study's storage as provenance records it: a SQLite file under this checkout relative to it
+    (an absolute path means nothing on another machine); any other URL as given."""
+    prefix = "sqlite:///"
+    if url.startswith(prefix):
+        path = Path(url[len(prefix):])
+        root = Path(__file__).resolve().parent.parent
+        if path.is_absolute() and path.resolve().is_relative_to(root):
+            return prefix + path.resolve().relative_to(root).as_posix()
+    return url
 
 
 @functools.lru_cache(maxsize=None)

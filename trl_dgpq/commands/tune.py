@@ -41,7 +41,7 @@ from trl_dgpq.commands import command, prog
 from trl_dgpq.commands.train import Parser, add_setting_flags, attach_negative_lists, given_settings
 from trl_dgpq.config import leaves
 
-PROCESS_FLAGS = ("out", "storage", "write_preset", "validate", "validation_seeds", "set")
+PROCESS_FLAGS = ("out", "storage", "write_preset", "force", "validate", "validation_seeds", "set")
 
 
 def tune_keys():
@@ -61,6 +61,8 @@ def make_parser() -> Parser:
                    help="write the best trial as a preset of this env and agent (envs/<domain>/tuned.json, with its "
                         "provenance): NAME, or without it 'tuned', '<preset>-tuned' if the study ran on another "
                         "preset than the env's default; train.py --preset NAME")
+    p.add_argument("--force", action="store_true",
+                   help="with --write-preset: replace a preset another study wrote (refused without it)")
     p.add_argument("--validate", type=int, default=0, metavar="K",
                    help="once the trials are done, run the K best and the first (the base preset's) again on "
                         "--validation-seeds at the full budget; --write-preset then writes the best there (five "
@@ -126,10 +128,15 @@ def _main(argv=None) -> int:
                   f"--validation-seeds {args.validation_seeds}", file=sys.stderr)
             return 128 + err.signum
     if args.write_preset is not None:
+        from trl_dgpq.presets import tuned_name
         try:
-            name, path = study.write_preset(args.write_preset or None)
+            replaced = study.replaces(args.write_preset or tuned_name(study.config["run"]["env"],
+                                                                      study.config["run"]["preset"]))
+            name, path = study.write_preset(args.write_preset or None, force=args.force)
         except ValueError as err:
             parser.error(str(err))
+        if replaced:
+            print(f"replaced {replaced}")
         run = study.config["run"]
         print(f"wrote preset '{name}' to {path}: {command('train')} --env {run['env']} --agent {run['agent']} "
               f"--preset {name}")
