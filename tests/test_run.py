@@ -241,9 +241,10 @@ def test_liquidation_figures_and_table_pair_runs_by_seed_and_episode(tmp_path):
     expected = sum(t.values()) / sum(o.values())
     rows = {line.split("|")[1].strip(): line.split("|") for line in
             (tmp_path / "fig" / "comparison.md").read_text().splitlines() if line.startswith("| ")}
-    assert rows["opt"][4].strip() == "all"   # 3 episodes: not "the last 1000"
-    assert rows["opt"][6].strip() == "1.000"
-    assert float(rows["twap"][6]) == pytest.approx(expected, abs=5e-4)
+    assert rows["opt"][2].strip() == "shortfall (uses the model)"   # the closed-form schedule
+    assert rows["opt"][5].strip() == "all"   # 3 episodes: not "the last 1000"
+    assert rows["opt"][7].strip() == "1.000"
+    assert float(rows["twap"][7]) == pytest.approx(expected, abs=5e-4)
     assert plot.main([str(tmp_path / "opt"), "--out", str(tmp_path / "fig2"), "--last", "2"]) == 0
     assert "| opt 2 | last 2 |" not in (tmp_path / "fig2" / "comparison.md").read_text()  # labels are agent names
     assert "| last 2 |" in (tmp_path / "fig2" / "comparison.md").read_text()
@@ -416,3 +417,38 @@ def test_a_run_into_a_folder_holds_nothing_per_step_or_episode(tmp_path, monkeyp
                  runner.RunFolder.create(str(tmp_path / "r"), "x"), progress=False)
     (collector, rows), = seen
     assert collector.total > 0 and collector.step_seconds == [] and len(rows) == 0
+
+
+def test_an_episodes_csv_cut_mid_row_is_refused_by_every_reader_and_resume_cuts_it_back(tmp_path, capsys):
+    """The file's last row cut short (the run stopped while writing it): plot, evaluate and report say
+    so in one line and exit 2, never a silent NaN row."""
+    from trl_dgpq.commands import evaluate, report
+    out = tmp_path / "r"
+    assert run("--seeds", 2, "--episodes", 2, "--max-steps", 30, "--out", out) == 0
+    path = out / "episodes.csv"
+    whole = path.read_bytes()
+    path.write_bytes(whole[:-7])
+    for main, argv in [(plot.main, [out]), (evaluate.main, [out, "--no-progress"]), (report.main, [out])]:
+        capsys.readouterr()
+        try:
+            code = main(list(map(str, argv)))
+        except SystemExit as exc:
+            code = exc.code
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and len(err.splitlines()) == 1 and "ends mid-row" in err and "--resume" in err, (main, err)
+    # the cut row was one its checkpoint covers: resume says what is missing, in one line
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        run("--resume", out, "--episodes", 3)
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2
+    assert len(err.splitlines()) == 1 and "(1 missing, 0 repeated)" in err
+
+
+def test_printed_hints_quote_a_path_with_spaces(tmp_path, capsys):
+    """The hint train prints ends with a command that, pasted into a shell, names the run."""
+    import shlex
+    out = tmp_path / "dir with spaces" / "my run"
+    assert run("--seeds", 1, "--episodes", 1, "--max-steps", 5, "--out", out) == 0
+    hint = capsys.readouterr().out.strip().splitlines()[-1].split("plot: ", 1)[1]
+    assert shlex.split(hint)[-1] == str(out)

@@ -85,7 +85,7 @@ class F16Config:
                                          "error and climb rate alone, the two the reward charges")
     potential: str = setting("none", "each step's TensorDict carries 'potential', phi of the state, and learners "
                                      "learn from r + gamma phi(s') - phi(s) (potential-based shaping: the same optimal "
-                                     "policies, a flatter Q - phi for DGPQ's envelope; issue 28). lqr: the value of "
+                                     "policies, a flatter Q - phi for DGPQ's envelope). lqr: the value of "
                                      "flying the unquantised LQR without noise (uses the model); cost: the state's "
                                      "own cost, |h - h_d| / 100 + |hdot| / 100 per simulator step, paid for ever (no "
                                      "model). The reward and the recorded returns stay GWH14's",

@@ -20,10 +20,25 @@ def read_csv_exact(path) -> pd.DataFrame:
     older pandas needs the round-trip parser). Every command reads runs through it, so a
     file that cannot be parsed is named here (pandas' message names only a line)."""
     exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+    if str(path).endswith(".csv") and ends_mid_row(path):
+        raise UnreadableCSV(f"cannot read {path}: it ends mid-row (the run was stopped while writing it, or the "
+                            "file was cut); resume the run (train --resume) to cut it back to its last checkpoint")
     try:
         return pd.read_csv(path, **exact)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
         raise UnreadableCSV(f"cannot read {path}: {str(err).strip().splitlines()[0]}") from None
+
+
+def ends_mid_row(path) -> bool:
+    """Whether a CSV's last byte is not a line end: every row the runner writes ends with one, so a
+    file that does not was cut in the middle of a row (its last row, parsed, could pass for another:
+    ``3,1`` of ``3,12,...``)."""
+    with open(path, "rb") as f:
+        f.seek(0, 2)
+        if f.tell() == 0:
+            return False
+        f.seek(-1, 2)
+        return f.read(1) != b"\n"
 
 
 @dataclass

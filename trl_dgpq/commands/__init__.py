@@ -15,6 +15,12 @@ def command(name: str) -> str:
     return f"{ENTRY} {name}" if ENTRY else f"python scripts/{name}.py"
 
 
+def quote(path) -> str:
+    """A path as a printed hint gives it: pasted into a shell it names the same file (spaces, quotes)."""
+    import shlex
+    return shlex.quote(str(path))
+
+
 def run(name: str, argv=None) -> int:
     """Command ``name`` on ``argv`` (default: the process's): ``--help`` and an unknown flag are
     answered before the command's heavy imports (``early``), the rest by its ``main``."""

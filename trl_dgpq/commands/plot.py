@@ -38,7 +38,7 @@ import sys
 from pathlib import Path
 
 from trl_dgpq.analysis import load_run
-from trl_dgpq.commands import command, guarded, prog
+from trl_dgpq.commands import command, guarded, prog, quote
 
 
 def default_labels(runs) -> list:
@@ -72,7 +72,7 @@ def main(argv=None) -> int:
         args.runs = [str(found[-1].parent)]
     for r in args.runs:
         if not (Path(r) / "episodes.csv").is_file():
-            return refuse(f"{r}/episodes.csv not found (run {command('train')} --out {r} first)")
+            return refuse(f"{r}/episodes.csv not found (run {command('train')} --out {quote(r)} first)")
     if args.labels and len(args.labels) != len(args.runs):
         return refuse(f"give one label per run ({len(args.runs)} runs, {len(args.labels)} labels)")
     return guarded("plot", lambda: draw([load_run(r, need_config=False) for r in args.runs], args.labels,

@@ -23,7 +23,7 @@ import sys
 
 from trl_dgpq.collectors import sweep
 from trl_dgpq.collectors.experiment import quiet_torchrl
-from trl_dgpq.commands import command, prog
+from trl_dgpq.commands import command, prog, quote
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     if args.grow and args.overwrite:
         parser.error("--grow keeps the sweep in --out, --overwrite replaces it: give one")
     out = args.resume or args.out
-    rerun = f"{command('sweep')} --resume {out}"
+    rerun = f"{command('sweep')} --resume {quote(out)}"
 
     def body() -> int:
         if args.resume:

@@ -29,7 +29,7 @@ import sys
 from trl_dgpq.analysis import count, ms_per_seed_step
 from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import cli_owners, describe, quiet_torchrl, resolve_config
-from trl_dgpq.commands import command, prog
+from trl_dgpq.commands import command, prog, quote
 from trl_dgpq.config import describe_default
 from trl_dgpq.envs import domain, split_name
 from trl_dgpq.presets import preset_table
@@ -213,12 +213,12 @@ def _main(argv=None) -> int:
             df = runner.start(config, folder, progress=not args.no_progress)
     except runner.Interrupted as stop:
         print(f"{stop} after {stop.episodes_done} episodes; checkpoint saved. "
-              f"Continue with: {command('train')} --resume {stop.folder.path}", file=sys.stderr)
+              f"Continue with: {command('train')} --resume {quote(stop.folder.path)}", file=sys.stderr)
         return stop.exit_code
     except ValueError as err:  # everything the user asked for is checked before any work
         parser.error(str(err))
     summarise(df, config)
-    print(f"wrote {folder.path}/episodes.csv; plot: {command('plot')} {folder.path}")
+    print(f"wrote {folder.path}/episodes.csv; plot: {command('plot')} {quote(folder.path)}")
     return 0
 
 

@@ -37,7 +37,7 @@ import signal
 import sys
 
 from trl_dgpq.collectors.experiment import cli_owners, quiet_torchrl
-from trl_dgpq.commands import command, prog
+from trl_dgpq.commands import command, prog, quote
 from trl_dgpq.commands.train import Parser, add_setting_flags, attach_negative_lists, given_settings
 from trl_dgpq.config import leaves
 
@@ -114,7 +114,7 @@ def _main(argv=None) -> int:
     if signum:
         storage = f" --storage {args.storage}" if args.storage else ""
         print(f"interrupted by {signal.Signals(signum).name}: {study.done(study.load())}/{trials} trials done; "
-              f"continue with: {command('tune')} --out {args.out}{storage} --trials {trials}", file=sys.stderr)
+              f"continue with: {command('tune')} --out {quote(args.out)}{storage} --trials {trials}", file=sys.stderr)
         return 128 + signum
     print(study.summary(trials), flush=True)
     if args.validate:
@@ -124,7 +124,7 @@ def _main(argv=None) -> int:
         except ValueError as err:
             parser.error(str(err))
         except runner.Interrupted as err:
-            print(f"interrupted: continue with: {command('tune')} --out {args.out} --validate {args.validate} "
+            print(f"interrupted: continue with: {command('tune')} --out {quote(args.out)} --validate {args.validate} "
                   f"--validation-seeds {args.validation_seeds}", file=sys.stderr)
             return 128 + err.signum
     if args.write_preset is not None:
