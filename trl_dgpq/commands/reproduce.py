@@ -251,13 +251,14 @@ def publish(out: Path, to: Path, scale: str, only=None) -> list:
         raise ValueError(f"{out} holds no finished experiment to publish")
     for name in names:     # seeds that chose a preset are never published (selection.py)
         check_reportable(planned[name], name)
+    # the code that publishes, as it is before this publication replaces the files it kept before
+    stamp = {**published.stamp(scale, only, f"python scripts/reproduce.py --scale {scale}"
+                                              + (" --only " + " ".join(only) if only else "")), "planned": list(planned)}
     if to.exists():
         for old in [f for pattern in ("*.md", "*.csv", "*.png", "*.gif", "*.json.xz") for f in to.rglob(pattern)
                     if published.DATA not in f.relative_to(to).parts]:
             old.unlink()
-    written = published.write_data(out, to, names, {**published.stamp(scale, only, (
-        f"python scripts/reproduce.py --scale {scale}" + (" --only " + " ".join(only) if only else ""))),
-        "planned": list(planned)})
+    written = published.write_data(out, to, names, stamp)
     for figure in published.CHECKPOINT_FIGURES:
         if (out / figure).is_file():
             (to / figure).parent.mkdir(parents=True, exist_ok=True)
