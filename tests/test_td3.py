@@ -134,3 +134,33 @@ def test_td3_runs_on_liquidation_and_refuses_discrete_actions():
     assert agent.act(env.reset()).shape == (2, 1)
     with pytest.raises(ValueError, match="td3"):
         resolve_config(env="square", agent="td3")
+
+
+def test_exploration_never_leaves_the_action_box():
+    """Noise of 40 half-widths on [0, 1] after the warm-up: every action given lies in the box, and
+    some sit on each face (the clip, not luck, keeps them there: liquidation refuses anything else)."""
+    box = Bounded(torch.zeros(1), torch.ones(1), shape=(1,))
+    agent = TD3(TD3Config(learning_starts=0, expl_noise=40.0, **SMALL), list(range(64)), 3, box)
+    td = TensorDict({"observation": torch.randn(64, 3)}, batch_size=[64])
+    got = torch.stack([agent.act(td) for _ in range(10)])
+    assert bool(((got >= 0) & (got <= 1)).all())
+    assert bool((got == 0).any()) and bool((got == 1).any())
+
+
+def test_td3_memory_estimate_is_the_full_replay_as_stored():
+    """Liquidation (8 observations, 1 action), 2 seeds, a buffer of 8 filled by 8 steps: per
+    transition observation and next (2 x 8 float32), action and reward (float32), done and
+    terminated (bool): 64 + 4 + 4 + 2 = 74 bytes, 2 x 8 x 74 = 1184, as the estimate says."""
+    from trl_dgpq.collectors.experiment import build, memory_estimate, resolve_config
+    config = resolve_config(env="liquidation", agent="td3", seeds=[0, 1], buffer_size=8, batch_size=8,
+                            actor_hidden=(4,), critic_hidden=(4,))
+    env, agent = build(config)
+    td = env.reset()
+    for _ in range(8):
+        td["action"] = agent.act(td)
+        td, td_next = env.step_and_maybe_reset(td)
+        agent.observe(td)
+        td = td_next
+    stored = agent.replay.storage._storage
+    assert sum(t.nbytes for t in stored.values(True, True)) == 2 * 8 * (2 * 8 * 4 + 4 + 4 + 2) == 1184
+    assert memory_estimate(config) == 1184
