@@ -36,7 +36,7 @@ def test_a_closed_form_agrees_when_it_lies_inside_the_interval():
     rule = Agrees(4.307, 1, higher_is_better=False)
     assert rule.judge(iv(4.28, 4.31)) == "agrees" and rule.judge(iv(4.307, 4.31)) == "agrees"
     assert rule.judge(iv(4.31, 4.40)) == "below" and rule.judge(iv(4.20, 4.30)) == "exceeds"
-    assert "inside our 95 % interval" in rule.text()
+    assert rule.text() == "agrees if the value lies inside our 95 % interval"
 
 
 def test_a_bound_is_met_strictly_on_its_good_side():
@@ -338,3 +338,71 @@ def test_liquidations_table_groups_learners_by_the_reward_they_learned_from():
     assert [line.split(" | ")[:2] for line in body] == [["| ac-optimal", "shortfall (uses the model)"],
                                                         ["| ddpg", "shortfall"], ["| dgpq-flat", "impact (uses the model)"]]
     assert "| 2.000 |" in body[1] and "| 3.000 |" in body[2]
+
+
+def test_the_edges_of_each_rule_by_hand():
+    """Band 5 to 20 (10 within 2x): an interval reaching either edge agrees; one starting at an edge and
+    going out is undecided, not beyond it. A closed form at the interval's upper end agrees. A bound's
+    value at the interval's end is undecided."""
+    rule = Agrees(10, 2, higher_is_better=True)
+    assert [rule.judge(iv(lo, hi)) for lo, hi in ((5, 20), (20, 25), (2, 5), (20.001, 25), (2, 4.999))] == \
+        ["agrees", "undecided", "undecided", "exceeds", "below"]
+    assert Agrees(4.307, 1, False).judge(iv(4.2, 4.307)) == "agrees"
+    assert Bound(1.10, higher_is_better=False).judge(iv(1.0, 1.10)) == "undecided"
+    assert Bound(1.10, higher_is_better=False).text() == "met if our interval lies below 1.1"
+    assert Bound(0.5, higher_is_better=True).text() == "met if our interval lies above 0.5"
+    assert Beats(True).text() == "met if our interval clears the baseline's"
+    assert NoNumber().text() == "the source gives no number"
+
+
+def test_what_a_verdict_says_in_words():
+    """Our side as the report prints it: the point and interval, the statistic, why it is censored, the
+    baseline by its short name; the bullet with the rule and what of the model the run uses."""
+    assert Interval(3.0, 3.0, 3.0, "s").text() == "3" and Interval(3.0, 2.0, 4.5, "s").text() == "3 [2, 4.5]"
+    assert Interval(3.0, 3.0, 4.0, "s").text() == "3 [3, 4]"
+    capped = Claim("k", "GWH14", "it is 4", Agrees(4, 2, False),
+                   lambda runs: Interval(3.0, 2.0, 4.0, "IQM over 2 seeds", censored="1 of 2 capped"), ("square-a",),
+                   baseline="square-random-paper", baseline_measure=lambda runs: Interval(9.0, 8.0, 10.0, "b"))
+    runs = {"square-a": run({"v": [1]}, reward="shaped"), "square-random-paper": run({"v": [1]}, reward="shaped")}
+    got = judge(capped, runs, "report")
+    assert got.claim is capped
+    assert got.ours == "3 [2, 4] (IQM over 2 seeds; 1 of 2 capped); random-paper 9 [8, 10]"
+    assert got.bullet() == ("- GWH14: it is 4 (agrees if our interval lies within 2x either way (2 to 8)). Ours: "
+                            f"{got.ours} -- **{got.verdict}**. Uses the model: reward: the distance to the goal "
+                            "(its position).")
+    plain = C.Judged(capped, "agrees", "1")
+    assert plain.bullet().endswith("Ours: 1 -- **agrees**.")
+    runs.pop("square-random-paper")
+    with pytest.raises(ValueError, match="^claim 'k' needs square-random-paper, which did not run$"):
+        judge(capped, runs, "report")
+    assert judge(capped, {}, "quick").claim is capped
+    p = C.improvement_interval([1, 2], [3, 4, 5], lower_is_better=False)
+    assert p.statistic == "P(improvement) over 2 x 3 seeds [95 % CI]" and p.point == 0.0
+    assert C.mean_interval([1, 3]).statistic == "mean over 2 seed-episodes [95 % CI]"
+    assert C.share_interval(1, 4, "flying").statistic == "share of 4 seeds flying [Wilson 95 % CI]"
+    assert C.seeds_interval([1, None, 3]).point == pytest.approx(2.0)        # None is a missing seed
+    assert C.mean_interval([1, None, 3]).point == pytest.approx(2.0)
+    assert C.share_interval(1, 1, "x").point == 1.0
+    with pytest.raises(ValueError, match="^a mean's interval needs two values or more$"):
+        C.mean_interval([1.0])
+    with pytest.raises(ValueError, match="^a share of no seeds$"):
+        C.share_interval(0, 0, "x")
+    with pytest.raises(ValueError, match="^no seed has a value in the claim's window$"):
+        C.seeds_interval([])
+
+
+def test_a_learner_level_with_its_baseline_has_not_cleared_it():
+    """Intervals that touch (the learner's low at the baseline's high) do not clear it."""
+    claim = Claim("k", "x", "s", Beats(True), lambda runs: Interval(5.0, 4.0, 6.0, "s"), ("a",), baseline="b",
+                  baseline_measure=lambda runs: Interval(3.0, 2.0, 4.0, "s"))
+    runs = {"a": run({"v": [1]}), "b": run({"v": [1]})}
+    got = judge(claim, runs, "report")
+    assert got.verdict == "no learning" and got.ours == "5 [4, 6] (s); b 3 [2, 4]"
+
+
+def test_the_table_and_tally_in_full():
+    claim = Claim("k", "AC00", "x", NoNumber(), constant("a", 1.0), ("a",))
+    assert C.table([C.Judged(claim, "no number to compare", "1", ("m1", "m2"))]) == (
+        "| source | claim | rule | ours | verdict | uses the model |\n|---|---|---|---|---|---|\n"
+        "| AC00 | x | the source gives no number | 1 | no number to compare | m1; m2 |\n\n"
+        "none; variants using the model: 1 no number to compare.")

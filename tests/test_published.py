@@ -60,7 +60,7 @@ def test_publish_keeps_the_rows_and_rebuilds_every_file_from_them_alone(tmp_path
     assert len(kept) == len(ran) == 6 and (kept["return"] == ran["return"]).all()
     assert kept["wall_s"].to_numpy() == pytest.approx(ran["wall_s"].to_numpy(), rel=1e-6)
     config = json.loads((to / "data" / "c1.json").read_text())
-    assert config["run"]["seeds"] == [0, 1] and config["jobs"][0]["commit"] == runner.provenance()["git"]["commit"]
+    assert config["run"]["seeds"] == [10, 11] and config["jobs"][0]["commit"] == runner.provenance()["git"]["commit"]
     stamp = published.manifest(to)
     assert stamp["experiments"] == ["c1", "c2"] and stamp["scale"] == "smoke"
     assert stamp["command"] == "python scripts/reproduce.py --scale smoke"

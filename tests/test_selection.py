@@ -124,7 +124,7 @@ def test_every_committed_result_is_on_reportable_seeds():
     assert rows      # the publication has rows to check
     for path, row in rows:
         config = run_config(row["env"], row["agent"], row["preset"], parse_seeds(row["seeds"]))
-        check_reportable(config, f"{path}: {row['experiment']}")
+        check_reportable(config, f"{path}: {row['experiment']}", publication=True)
 
 
 @pytest.mark.parametrize("scale", reproduce.SCALES)
@@ -132,10 +132,14 @@ def test_every_reproduction_experiment_is_on_reportable_seeds(scale):
     planned = reproduce.experiments(scale)
     assert planned
     for name, config in planned.items():
-        check_reportable(config, f"reproduce --scale {scale}: {name}")
+        check_reportable(config, f"reproduce --scale {scale}: {name}", publication=True)
 
 
-@pytest.mark.parametrize("path", sorted((ROOT / "configs").glob("*.toml")), ids=lambda p: p.name)
+BENCHMARKS = ("smoke.toml", "throughput-liquidation.toml", "throughput-square.toml")   # timed, never reported
+
+
+@pytest.mark.parametrize("path", [p for p in sorted((ROOT / "configs").glob("*.toml")) if p.name not in BENCHMARKS],
+                         ids=lambda p: p.name)
 def test_every_sweep_file_experiment_is_on_reportable_seeds(path):
     experiments = read_sweep_file(path)
     assert experiments
@@ -219,3 +223,16 @@ def test_report_checks_the_seeds_in_episodes_csv_and_each_run(tmp_path, capsys):
     assert "1004 (tuning)" in capsys.readouterr().err and not (tmp_path / "b").exists()
     assert report.main([str(good), str(far), "--out", str(tmp_path / "c")]) == 2
     assert "reporting seeds are 0-99" in capsys.readouterr().err and not (tmp_path / "c").exists()
+
+
+def test_the_seeds_development_explored_are_never_published():
+    """Seeds 0-9 chose hand-set presets and the claims' windows: a run there is refused like one on a
+    study's tuning seeds, and the reproduction begins past them."""
+    from trl_dgpq.collectors.experiment import resolve_config
+    from trl_dgpq.selection import EXPLORED, FIRST_REPORTING
+    assert FIRST_REPORTING == EXPLORED.stop == 10
+    with pytest.raises(SelectionSeedsError, match=r"seeds 3, 9 were explored .* use seeds from 10 up"):
+        check_reportable(resolve_config(env="square", agent="dgpq", seeds=[3, 9, 10]), publication=True)
+    check_reportable(resolve_config(env="square", agent="dgpq", seeds=[10, 99]), publication=True)
+    check_reportable(resolve_config(env="square", agent="dgpq", seeds=[3, 9]))      # a user's own report: fine
+    assert all(min(c["run"]["seeds"]) == 10 for c in reproduce.experiments("report").values())

@@ -10,6 +10,11 @@ So the seeds are split once and for all:
   1000-1004 for trials and 1005-1014 for validation).
 - every other seed: for studies and validations only. A run on them is never reported, and a
   run on a preset's own tuning or validation seeds even less (``check_reportable``).
+- ``EXPLORED`` (0-9): the seeds development ran while it hand-set presets and chose what the
+  claims measure (their windows, their lengths: the research logs' ``--seeds 0-9``). They chose
+  things too, so the published reproduction (``check_reportable(..., publication=True)``) is
+  never on them: it reports on ``FIRST_REPORTING`` (10) upward, seeds no development run used.
+  A user's own ``report`` of a run on the default seeds 0-7 is not refused for that.
 
 A preset a study wrote on top of another study's preset (its ``base_preset``) was chosen on
 that study's seeds too: they count as well.
@@ -19,6 +24,8 @@ from __future__ import annotations
 from typing import Iterable, Optional
 
 REPORTING = range(0, 100)
+EXPLORED = range(0, 10)     # seeds development looked at while choosing hand-set presets and claims
+FIRST_REPORTING = 10        # the reproduction's seeds begin here: past EXPLORED
 EXAMPLE_TUNING = "1000-1004"       # tune's default --seeds
 EXAMPLE_VALIDATION = "1005-1014"   # tune's default --validation-seeds
 
@@ -61,11 +68,12 @@ def selection_seeds(env: str, agent: str, preset: Optional[str]) -> dict:
     return {"tuning": sorted(tuning), "validation": sorted(validation)}
 
 
-def check_reportable(config: dict, name: Optional[str] = None) -> None:
+def check_reportable(config: dict, name: Optional[str] = None, publication: bool = False) -> None:
     """SelectionSeedsError (one line) unless the run of ``config`` (a resolved config: its
     "run" has env, agent, preset and seeds) may be reported on: none of its seeds chose its
     preset (tuning or validation) and all lie in the reporting seeds 0-99. ``name``: the
-    experiment or run folder the message names."""
+    experiment or run folder the message names. ``publication``: the published reproduction, which
+    the seeds development explored (EXPLORED) may not hold either."""
     run = config["run"]
     seeds = run.get("seeds")
     if isinstance(seeds, (str, int)):
@@ -82,6 +90,12 @@ def check_reportable(config: dict, name: Optional[str] = None) -> None:
         raise SelectionSeedsError(
             f"{who}: seeds {' and '.join(roles)} chose that preset, and seeds that chose a preset are never "
             f"reported on (reporting seeds are {_reporting_text()})")
+    looked = seeds & set(EXPLORED) if publication else set()
+    if looked:
+        raise SelectionSeedsError(
+            f"{who}: {'seed' if len(looked) == 1 else 'seeds'} {seeds_text(looked)} were explored while the hand-set "
+            f"presets and the claims were chosen, so nothing is published on them: use seeds from {FIRST_REPORTING} "
+            f"up (reporting seeds are {_reporting_text()}, less {EXPLORED.start}-{EXPLORED.stop - 1})")
     outside = seeds - set(REPORTING)
     if outside:
         raise SelectionSeedsError(

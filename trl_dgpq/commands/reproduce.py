@@ -35,6 +35,7 @@ from trl_dgpq.collectors import runner, sweep
 from trl_dgpq.collectors.experiment import resolve_config
 from trl_dgpq.commands import prog
 from trl_dgpq.envs import domains
+from trl_dgpq.selection import FIRST_REPORTING
 
 SCALES = ("smoke", "quick", "full", "report")  # smoke: for tests; report: the seed report's own lengths
 
@@ -74,6 +75,7 @@ def experiments(scale: str, only=None) -> dict:
             if sizes is None:  # an experiment of some scales only
                 continue
             seeds, episodes, *budget = sizes   # (seeds, episodes[, env steps per seed])
+            seeds = list(range(FIRST_REPORTING, FIRST_REPORTING + seeds))   # past the seeds development explored
             out[name] = resolve_config({"env": d.examples()[0], **settings, "seeds": seeds, "episodes": episodes,
                                         "env_steps": budget[0] if budget else 0})
     return out
@@ -124,8 +126,9 @@ def write_report(out: Path, scale: str, wall: float, only=None) -> Path:
         from trl_dgpq.selection import check_reportable
         stamp = published.manifest(out)
         kept = {name: published.load(out, name) for name in stamp["experiments"]}
-        for name, run in kept.items():
-            check_reportable(run.config, name)
+        for name, run in kept.items():     # the seeds of its config and of its rows
+            seeds = sorted(set(run.config["run"]["seeds"]) | {int(s) for s in run.df["seed"].unique()})
+            check_reportable({**run.config, "run": {**run.config["run"], "seeds": seeds}}, name, publication=True)
         planned = {name: kept[name].config if name in kept else None for name in stamp.get("planned", kept)}
         done = list(kept)
         load = kept.__getitem__
@@ -249,8 +252,9 @@ def publish(out: Path, to: Path, scale: str, only=None) -> list:
     names = [name for name in planned if finished(out, name)]
     if not names:
         raise ValueError(f"{out} holds no finished experiment to publish")
-    for name in names:     # seeds that chose a preset are never published (selection.py)
-        check_reportable(planned[name], name)
+    for name in names:     # seeds that chose anything are never published (selection.py): the plan's, the runs'
+        check_reportable(planned[name], name, publication=True)
+        check_reportable(load_run(out / name).config, name, publication=True)
     # the code that publishes, as it is before this publication replaces the files it kept before
     stamp = {**published.stamp(scale, only, f"python scripts/reproduce.py --scale {scale}"
                                               + (" --only " + " ".join(only) if only else "")), "planned": list(planned)}
