@@ -103,6 +103,9 @@ def atomic_write(path: Path, write, before_replace=None) -> None:
             tmp.unlink()
 
 
+CODE = ("trl_dgpq", "envs", "collectors", "scripts", "setup.py", "pyproject.toml")   # what a run's code is
+
+
 def provenance() -> dict:
     """Versions and the git commit of this code, for config.json."""
     import numpy
@@ -116,7 +119,9 @@ def provenance() -> dict:
         out = lambda *a: subprocess.run(["git", *a], cwd=root, capture_output=True, text=True,  # noqa: E731
                                         timeout=10, check=True).stdout.strip()
         git["commit"] = out("rev-parse", "HEAD")
-        git["dirty"] = bool(out("status", "--porcelain", "--untracked-files=no"))
+        # the code differs from the commit: a change to, or a new file among, what runs (docs and
+        # results may change without making a run's provenance less true)
+        git["dirty"] = bool(out("status", "--porcelain", "--", *CODE))
     except (OSError, subprocess.SubprocessError):
         pass  # not a git checkout (an installed wheel): versions still say what ran
     return dict(versions=versions, git=git)

@@ -25,9 +25,12 @@ def test_agrees_is_two_sided_on_the_whole_interval():
     assert rule.judge(iv(-35.0, -25.0)) == "undecided"
     fewer = Agrees(100, 3, higher_is_better=False)               # steps: fewer is better, 33.3 to 300
     assert fewer.judge(iv(10, 20)) == "exceeds" and fewer.judge(iv(400, 500)) == "below"
-    # a censored interval (capped episodes) beyond the band could lie anywhere past it
-    assert fewer.judge(iv(200, 200, censored="capped")) == "undecided"
-    assert Agrees(2236, math.sqrt(5), False).judge(iv(200, 200, censored="capped")) == "undecided"
+    # a censored interval (capped episodes: the truth is at or above it) decides only where its low end does
+    assert fewer.judge(iv(200, 200, censored="capped")) == "capped"             # 200 and up: inside or beyond 300
+    assert fewer.judge(iv(500, 500, censored="capped")) == "below"              # 500 and up: beyond 300
+    assert Agrees(2236, math.sqrt(5), False).judge(iv(200, 200, censored="capped")) == "capped"
+    assert Agrees(4, 1, False).judge(iv(3, 5, censored="capped")) == "capped"   # a closed form inside a cut one
+    assert Agrees(2, 1, False).judge(iv(3, 5, censored="capped")) == "below"
     with pytest.raises(ValueError, match="at least 1"):
         Agrees(1, 0.5, True)
 
@@ -46,8 +49,10 @@ def test_a_bound_is_met_strictly_on_its_good_side():
     cost = Bound(1.10, higher_is_better=False)             # at most 1.10 U*
     assert [cost.judge(iv(lo, hi)) for lo, hi in ((1.0, 1.09), (1.11, 1.2), (1.1, 1.2), (1.05, 1.15))] == \
         ["met", "not met", "not met", "undecided"]
-    assert cost.judge(iv(1.0, 1.05, censored="capped")) == "met"       # censored on the side it clears
-    assert p.judge(iv(0.2, 0.4, censored="capped")) == "undecided"
+    assert cost.judge(iv(1.0, 1.05, censored="capped")) == "capped"     # the cut seeds could push it past 1.10
+    assert cost.judge(iv(1.2, 1.3, censored="capped")) == "not met"
+    assert p.judge(iv(0.6, 0.7, censored="capped")) == "met"           # cut from above: still above 0.5
+    assert p.judge(iv(0.2, 0.4, censored="capped")) == "capped"
 
 
 def run(df, env="square", agent="dgpq", run_settings=None, **env_settings):
@@ -181,12 +186,14 @@ def test_the_squares_claims():
     assert later.verdict == "agrees" and later.ours.startswith("21 ")
     runs["square-random-paper"] = run(episodes([21] * 5, "steps"), agent="random", reward="paper")
     assert judge(got["square/paper/episodes-3+"], runs, "report").verdict == "no learning"
-    capped = run(episodes([200, 30, 20], "steps"), max_steps=200, reward="paper")
+    capped = run(episodes([200, 30, 20], "steps", terminated=False), max_steps=200, reward="paper")
     c = judge(got["square/paper/episode-1"], {"square-paper": capped}, "report")
-    assert c.verdict == "undecided" and "2 of 2 seeds capped at 200 steps" in c.ours
+    assert c.verdict == "capped" and "2 of 2 seeds capped at 200 steps" in c.ours
+    reached = run(episodes([200, 30, 20], "steps", terminated=True), max_steps=200, reward="paper")
+    assert judge(got["square/paper/episode-1"], {"square-paper": reached}, "report").verdict == "agrees"  # no cut
     report = run(episodes([200, 200], "steps"), max_steps=200, reward="shaped")
     r = judge(got["square/report/episode-1"], {"square-report": report}, "report")
-    assert r.verdict == "undecided" and not r.variant                 # the seed report ran on shaped too
+    assert r.verdict == "capped" and not r.variant                    # the seed report ran on shaped too
     assert got["square/report/episode-1"].rule.band() == pytest.approx((1000, 5000))
 
 

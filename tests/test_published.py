@@ -48,11 +48,18 @@ def test_publish_keeps_the_rows_and_rebuilds_every_file_from_them_alone(tmp_path
     corridor_domain(monkeypatch)
     out, to = tmp_path / "repro", tmp_path / "results" / "report"
     run_all(out)
-    (to / "old").mkdir(parents=True)
-    (to / "old" / "gone.png").write_text("x")
-    (to / "notes.txt").write_text("kept")
+    to.mkdir(parents=True)
+    (to / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match="neither an earlier publication nor empty"):   # never deletes what is not its own
+        reproduce.publish(out, to, "smoke")
+    with pytest.raises(ValueError, match="apart from the runs'"):
+        reproduce.publish(out, out / "pub", "smoke")
+    assert (to / "notes.txt").read_text() == "mine" and (out / "c1" / "episodes.csv").is_file()
+    (to / "notes.txt").unlink()
     reproduce.publish(out, to, "smoke")
-    assert not (to / "old" / "gone.png").exists() and (to / "notes.txt").read_text() == "kept"
+    (to / "stale.png").write_text("x")                       # a figure an earlier publication drew: replaced whole
+    reproduce.publish(out, to, "smoke")
+    assert not (to / "stale.png").exists() and not (to.parent / ".report.new").exists()
     # the rows: every (seed, episode) the runs wrote, floats to 7 digits, less cpu_s and us_per_step
     kept = pd.read_csv(to / "data" / "c1.csv.xz")
     ran = pd.read_csv(out / "c1" / "episodes.csv")
@@ -66,8 +73,8 @@ def test_publish_keeps_the_rows_and_rebuilds_every_file_from_them_alone(tmp_path
     assert stamp["command"] == "python scripts/reproduce.py --scale smoke"
     text = (to / "REPORT.md").read_text()
     assert "Built from the per-episode data in `data/`" in text and "## Corridor" in text
-    assert (to / "summary.md").read_text().startswith("Every claim, judged by its rule on the published data of "
-                                                      "`python scripts/reproduce.py --scale smoke`")
+    assert (to / "summary.md").read_text().startswith("The claims of corridor, each judged by its rule on the "
+                                                      "published data of `python scripts/reproduce.py --scale smoke`")
     assert "**The corridor.** Two constant agents." in (to / "summary.md").read_text()
     assert (to / "sections" / "corridor.md").is_file()
     # no runs/: the rebuild gives every file back, byte for byte

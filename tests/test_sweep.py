@@ -547,7 +547,7 @@ def test_reproduce_reports_the_domains_whose_experiments_all_finished(tmp_path, 
              "a 1 seed x 2 episodes, b 1 seed x 2 episodes (some agents fewer: see the tables).")
     # the report here, then the publication rebuilt from its data alone
     assert calls == [(out, label, "smoke scale (fewer seeds and episodes than the seed report)"),
-                     (tmp_path / "pub", label, "smoke scale (fewer seeds and episodes than the seed report)")]
+                     (tmp_path / ".pub.new", label, "smoke scale (fewer seeds and episodes than the seed report)")]
     assert "## b: not finished\n\n1 of 3 experiments have finished; waiting for b1, b3.\n" in text
     assert "## Section b" not in text and "## a: not finished" not in text
     assert (out / "claims.md").read_text() == (

@@ -62,10 +62,20 @@ def selection_seeds(env: str, agent: str, preset: Optional[str]) -> dict:
     while name is not None and name in entries and name not in seen:
         seen.add(name)
         provenance = entries[name].get("provenance") or {}
-        tuning.update(int(s) for s in provenance.get("seeds") or ())
-        validation.update(int(s) for s in (provenance.get("validation") or {}).get("seeds") or ())
+        tuning.update(as_seeds(provenance.get("seeds")))
+        validation.update(as_seeds((provenance.get("validation") or {}).get("seeds")))
         name = provenance.get("base_preset")
     return {"tuning": sorted(tuning), "validation": sorted(validation)}
+
+
+def as_seeds(seeds) -> list:
+    """Seeds as a list of ints, from a list or from text as --seeds reads it ("1000-1004", "0,2,5")."""
+    if seeds is None:
+        return []
+    if isinstance(seeds, (str, int)):
+        from trl_dgpq.collectors.experiment import parse_seeds
+        return [int(s) for s in parse_seeds(str(seeds))]
+    return [int(s) for s in seeds]
 
 
 def check_reportable(config: dict, name: Optional[str] = None, publication: bool = False) -> None:
@@ -75,11 +85,9 @@ def check_reportable(config: dict, name: Optional[str] = None, publication: bool
     experiment or run folder the message names. ``publication``: the published reproduction, which
     the seeds development explored (EXPLORED) may not hold either."""
     run = config["run"]
-    seeds = run.get("seeds")
-    if isinstance(seeds, (str, int)):
-        from trl_dgpq.collectors.experiment import parse_seeds
-        seeds = parse_seeds(seeds)
-    seeds = {int(s) for s in seeds or ()}
+    seeds = set(as_seeds(run.get("seeds")))
+    if not seeds:
+        raise SelectionSeedsError(f"{name or 'a run'}: its config names no seeds, so nothing says it may be reported on")
     env, agent, preset = run.get("env"), run.get("agent"), run.get("preset")
     what = f"{agent} on {env}, preset {preset!r}"
     who = f"{name} ({what})" if name else what

@@ -293,10 +293,17 @@ def twap_closed_form() -> dict:
     return dict(cost=twap["utility"] / m.utility(), shortfall=twap["expected_shortfall"] / m.expected_shortfall())
 
 
+def default_market(run) -> None:
+    """The closed forms the claims quote are the default market's: a run in another is refused."""
+    if ACModel.from_config(from_dict(LiquidationConfig, run.config["env"])) != market():
+        raise ValueError(f"{run.path}: its market differs from the default one whose closed forms the claims quote")
+
+
 def ac_cost_mean(name: str):
     """The claim's measure: the mean ac_cost over every seed-episode of a fixed schedule."""
     def measure(runs):
         from trl_dgpq.analysis.claims import mean_interval
+        default_market(runs[name])
         return mean_interval(runs[name].df["ac_cost"])
     return measure
 
@@ -307,6 +314,7 @@ def paired_mean(name: str, column: str, scale: float):
     expected value): the pairing takes out the price noise both pay."""
     def measure(runs):
         from trl_dgpq.analysis.claims import mean_interval
+        default_market(runs[name])
         pairs = runs[name].df.merge(runs["liq-ac-optimal"].df, on=["seed", "episode"], suffixes=("", "_opt"))
         return mean_interval(1 + (pairs[column] - pairs[column + "_opt"]) / scale, "seed-episodes paired with the "
                              "optimum's")
@@ -322,8 +330,10 @@ def drift_measure(name: str, which: str, block: int = 500, settle: int = 1000, l
         df = runs[name].df
         if df.episode.max() < settle + 2 * block:
             raise ValueError(f"{name} ran {df.episode.max()} episodes: too few for blocks after episode {settle}")
-        got = [blocks_of(g, lambda rows: float(rows["noise_free_cost_ratio"].mean()), block, settle, last)
-               for _, g in df.groupby("seed")]
+        got = [noise_free_drift(g, block, settle, last) for _, g in df.groupby("seed")]
+        if any(d is None for d in got):     # a seed's weighed episodes without the column: judged on none
+            raise ValueError(f"{name}: not every weighed episode has the noise-free cost ratio (a run from before "
+                             "the column): run it again")
         return seeds_interval([d["last"] if which == "last" else d["worst_over_best"] for d in got])
     return measure
 

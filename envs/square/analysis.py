@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Optional
 
 import numpy as np
+import pandas as pd
 
 from trl_dgpq.analysis import Threshold, kernel_fits_per_seed, ms_per_seed_step
 
@@ -42,13 +43,17 @@ REPRODUCE = [
 
 
 def episode_one(name: str):
-    """The claim's measure: each seed's steps in episode 1 (censored where a seed hit the cap)."""
+    """The claim's measure: each seed's steps in episode 1 (censored where a seed hit the cap: its
+    true first episode is longer)."""
     def measure(runs):
         from trl_dgpq.analysis.claims import seeds_interval
         run = runs[name]
-        steps = run.df[run.df.episode == 1].set_index("seed")["steps"]
-        got, cap = seeds_interval(steps), run.config["env"]["max_steps"]
-        capped = int((steps >= cap).sum())
+        first = run.df[run.df.episode == 1].set_index("seed")
+        steps, cap = first["steps"], run.config["env"]["max_steps"]
+        got = seeds_interval(steps)
+        # cut by the cap: at it without reaching the goal (a goal reached at the cap's step is no cut)
+        capped = int(((steps >= cap) & ~first.get("terminated", pd.Series(False, index=first.index))
+                      .astype(bool)).sum())
         return replace(got, censored=f"{capped} of {len(steps)} seeds capped at {cap} steps") if capped else got
     return measure
 

@@ -10,7 +10,9 @@ from the experiments it ``needs``, and judges that interval by its ``rule``:
   the source beyond the band -- its own verdict, never counted as agreeing) or **below** when it
   lies wholly beyond one edge; **undecided** when it straddles an edge (more seeds decide it).
   With factor 1, a closed form checked by simulation: agrees when the value lies inside the
-  interval.
+  interval. Values cut by a step cap may be larger than recorded: their interval reaches up
+  without end, and where that leaves the claim open the verdict is **capped** (a longer cap
+  decides it, not more seeds).
 - ``Bound(value)``, a goal of this suite or a comparison of learners (P(improvement) against
   0.5): **met** when the whole interval lies strictly on the good side, **not met** when it lies
   wholly on the other, **undecided** otherwise.
@@ -36,15 +38,16 @@ import numpy as np
 AGREES, EXCEEDS, BELOW, UNDECIDED = "agrees", "exceeds", "below", "undecided"
 MET, NOT_MET = "met", "not met"
 NO_LEARNING, NO_NUMBER, NOT_JUDGED = "no learning", "no number to compare", "not judged at this scale"
-VERDICTS = (AGREES, EXCEEDS, BELOW, MET, NOT_MET, UNDECIDED, NO_LEARNING, NO_NUMBER, NOT_JUDGED)
+CAPPED = "capped"   # the runs were cut (a step cap) where the claim lies: a longer cap decides it, not more seeds
+VERDICTS = (AGREES, EXCEEDS, BELOW, MET, NOT_MET, UNDECIDED, CAPPED, NO_LEARNING, NO_NUMBER, NOT_JUDGED)
 
 
 @dataclass(frozen=True)
 class Interval:
     """Our side of a claim: a point estimate and its 95 % interval, and how they were computed
-    (``statistic``, e.g. "IQM over 10 seeds [95 % CI]"). ``censored``: why the values cannot go
-    past where they are (e.g. "episodes capped at 200 steps"); a censored interval decides nothing
-    on the side it is cut."""
+    (``statistic``, e.g. "IQM over 10 seeds [95 % CI]"). ``censored``: why the values may be larger
+    than recorded (e.g. "episodes capped at 200 steps"): the interval then says only that the
+    truth lies at or above its low end, and decides nothing above it."""
     point: float
     low: float
     high: float
@@ -52,8 +55,15 @@ class Interval:
     censored: str = ""
 
     def __post_init__(self):
-        if not (self.low <= self.point <= self.high) and not math.isnan(self.point):
+        if math.isnan(self.point) or math.isnan(self.low) or math.isnan(self.high):
+            raise ValueError(f"an interval of NaN ({self.statistic}): no value to judge")
+        if not (self.low <= self.point <= self.high):
             raise ValueError(f"an interval holds its point: {self.low} <= {self.point} <= {self.high}")
+
+    @property
+    def top(self) -> float:
+        """The interval's upper end, or infinity where the values were cut from above."""
+        return math.inf if self.censored else self.high
 
     def text(self, fmt: str = "{:,.4g}") -> str:
         if self.low == self.high == self.point:
@@ -123,21 +133,19 @@ class Agrees:
         return f"agrees if our interval lies within {self.factor:.3g}x either way ({low:,.4g} to {high:,.4g})"
 
     def judge(self, ours: Interval) -> str:
-        if self.factor == 1:
+        top = ours.top                 # a censored interval reaches up without end
+        if self.factor == 1:           # a closed form: inside our (uncut) interval
             low = high = self.value
-            if ours.low <= self.value <= ours.high:
+            if ours.low <= self.value <= top and not ours.censored:
                 return AGREES
         else:
             low, high = self.band()
-            if low <= ours.low and ours.high <= high and not ours.censored:
+            if low <= ours.low and top <= high:
                 return AGREES
-        above = ours.low > high      # the whole interval beyond the band's upper edge
-        beneath = ours.high < low
-        if ours.censored and (above or beneath):
-            return UNDECIDED         # cut where it stands: it could lie anywhere beyond
+        above, beneath = ours.low > high, top < low     # wholly beyond the band's upper or lower edge
         if above or beneath:
             return EXCEEDS if above == self.higher_is_better else BELOW
-        return UNDECIDED
+        return CAPPED if ours.censored else UNDECIDED
 
 
 @dataclass(frozen=True)
@@ -150,11 +158,10 @@ class Bound:
         return f"met if our interval lies {'above' if self.higher_is_better else 'below'} {self.value:,.4g}"
 
     def judge(self, ours: Interval) -> str:
-        good = ours.low > self.value if self.higher_is_better else ours.high < self.value
-        bad = ours.high <= self.value if self.higher_is_better else ours.low >= self.value
-        if ours.censored and not good:
-            return UNDECIDED
-        return MET if good else NOT_MET if bad else UNDECIDED
+        top = ours.top                 # a censored interval reaches up without end
+        good = ours.low > self.value if self.higher_is_better else top < self.value
+        bad = top <= self.value if self.higher_is_better else ours.low >= self.value
+        return MET if good else NOT_MET if bad else CAPPED if ours.censored else UNDECIDED
 
 
 @dataclass(frozen=True)
@@ -204,6 +211,8 @@ class Claim:
     def __post_init__(self):
         if isinstance(self.rule, Beats) and not self.baseline:
             raise ValueError(f"claim {self.key!r}: 'beats' needs a baseline")
+        if isinstance(self.rule, NoNumber) and self.baseline:
+            raise ValueError(f"claim {self.key!r}: a claim with no number has no baseline to clear")
 
 
 @dataclass(frozen=True)
@@ -249,9 +258,10 @@ def judge(claim: Claim, runs: dict, scale: str, planned: Optional[dict] = None) 
         else:
             base = claim.measure({**runs, claim.needs[0]: runs[claim.baseline]})
         higher = claim.rule.higher_is_better
-        clears = ours.low > base.high if higher else ours.high < base.low
+        clears = ours.low > base.top if higher else ours.top < base.low
         text += f"; {claim.baseline.split('-', 1)[-1]} {base.text(claim.fmt)}"
-        if not clears and verdict != NO_NUMBER:
+        unknown = ours.censored and not higher     # cut from above: whether it clears below is not known
+        if not clears and not unknown:
             verdict = NO_LEARNING
     return Judged(claim, verdict, text, model)
 

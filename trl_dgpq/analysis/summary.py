@@ -60,8 +60,9 @@ def steps_to_threshold(df: pd.DataFrame, threshold: Threshold, budget=None) -> p
 
 
 def last_episodes(df: pd.DataFrame, window: int, budget=None) -> pd.DataFrame:
-    """The one window every table uses: each seed's last ``window`` episodes that ended within
-    ``budget`` env steps (None or 0: every episode it ran). ``df`` as ``load_run`` gives it."""
+    """The window of results.csv and of every at-budget column: each seed's last ``window`` episodes
+    that ended within ``budget`` env steps (None or 0: every episode it ran); a domain's own tables
+    name theirs in their headers. ``df`` as ``load_run`` gives it."""
     within = df[df["env_steps"] <= budget] if budget else df
     return within.sort_values(["seed", "episode"], kind="stable").groupby("seed").tail(window)
 

@@ -133,7 +133,7 @@ def write_report(out: Path, scale: str, wall: float, only=None) -> Path:
         done = list(kept)
         load = kept.__getitem__
         head = (f"# Reproduction of the seed report ({scale} scale)\n\nBuilt from the per-episode data in "
-                f"`data/` by `trl-dgpq report {out.as_posix()}`: the runs of `{stamp['command']}`, published "
+                f"`data/` by `trl-dgpq report` on this folder: the runs of `{stamp['command']}`, published "
                 f"{stamp['published']} at commit {stamp['commit']}{' (dirty)' if stamp['dirty'] else ''}. Every "
                 "number and figure below is computed from those files (a trained agent's figures from what its "
                 "checkpoint showed, kept beside them: Q̂ over the square, the F-16's trace, liquidation's holdings), "
@@ -186,9 +186,15 @@ def write_report(out: Path, scale: str, wall: float, only=None) -> Path:
                "figures.\n\n" + table(judged) + "\n\n") if judged else ""
     (out / "claims.md").write_text(table(judged) + "\n")   # the table alone: the docs site includes it
     from trl_dgpq.analysis.claims import tally
+    every = [d.name for d, _ in reproductions()]
+    shown = [d.name for d, a in reproductions(only) if any(n in planned for n, *_ in a.REPRODUCE)
+             and all(n in done for n, *_ in a.REPRODUCE if n in planned)]
+    missing = [n for n in every if n not in shown]
+    where = "the published data" if published.is_published(out) else "the runs"
     (out / "summary.md").write_text(
-        f"Every claim, judged by its rule on the published data of `{command}` "
-        f"([the report](results/report/REPORT.md)): {tally(judged)}.\n\n" + "\n".join(summaries))
+        f"The claims of {', '.join(shown) or 'no domain'}, each judged by its rule on {where} of `{command}` "
+        f"([the report](results/report/REPORT.md)): {tally(judged)}."
+        + (f" Not in this report yet: {', '.join(missing)}." if missing else "") + "\n\n" + "\n".join(summaries))
     path = out / "REPORT.md"
     path.write_text(head + summary + "\n".join(sections) + "\n" + cost_section(loaded))
     from trl_dgpq.analysis import results
@@ -240,14 +246,20 @@ def cost_section(loaded) -> str:
 
 def publish(out: Path, to: Path, scale: str, only=None) -> list:
     """What the repository keeps of the reproduction in ``out`` (e.g. into results/report): the
-    per-episode data and configs of its finished experiments (``analysis/published.py``), the
-    figures drawn from checkpoints, and REPORT.md, claims.md, results.csv, summary.md, sections/ and
-    the other figures rebuilt from those data alone. What ``to`` held of an earlier publication
-    goes first (nothing else is touched)."""
+    per-episode data and configs of its finished experiments (``analysis/published.py``), the data
+    of the figures drawn from checkpoints, and REPORT.md, claims.md, results.csv, summary.md,
+    sections/ and the figures rebuilt from those alone. Built beside ``to`` and then put in its
+    place whole, so a failure leaves the earlier publication as it was; ``to`` must be an earlier
+    publication, empty, or absent (it holds the publication alone), and apart from ``out``."""
     import shutil
 
     from trl_dgpq.analysis import published
     from trl_dgpq.selection import check_reportable
+    out, to = Path(out).resolve(), Path(to).resolve()
+    if out == to or out in to.parents or to in out.parents:
+        raise ValueError(f"publish into a folder apart from the runs' ({to} and {out} hold one another)")
+    if to.exists() and (not to.is_dir() or (any(to.iterdir()) and not published.is_published(to))):
+        raise ValueError(f"{to} is neither an earlier publication nor empty: publish into a folder of its own")
     planned = experiments(scale, only)
     names = [name for name in planned if finished(out, name)]
     if not names:
@@ -255,21 +267,27 @@ def publish(out: Path, to: Path, scale: str, only=None) -> list:
     for name in names:     # seeds that chose anything are never published (selection.py): the plan's, the runs'
         check_reportable(planned[name], name, publication=True)
         check_reportable(load_run(out / name).config, name, publication=True)
-    # the code that publishes, as it is before this publication replaces the files it kept before
+    # the code that publishes, as committed (runner.provenance: its files unchanged)
     stamp = {**published.stamp(scale, only, f"python scripts/reproduce.py --scale {scale}"
                                               + (" --only " + " ".join(only) if only else "")), "planned": list(planned)}
+    new, old = to.with_name(f".{to.name}.new"), to.with_name(f".{to.name}.old")
+    for leftover in (new, old):
+        shutil.rmtree(leftover, ignore_errors=True)
+    try:
+        published.write_data(out, new, names, stamp)
+        for figure in published.CHECKPOINT_FIGURES:
+            if (out / figure).is_file():
+                (new / figure).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(out / figure, new / figure)
+        write_report(new, scale, 0.0, only)
+    except BaseException:
+        shutil.rmtree(new, ignore_errors=True)
+        raise
     if to.exists():
-        for old in [f for pattern in ("*.md", "*.csv", "*.png", "*.gif", "*.json.xz") for f in to.rglob(pattern)
-                    if published.DATA not in f.relative_to(to).parts]:
-            old.unlink()
-    written = published.write_data(out, to, names, stamp)
-    for figure in published.CHECKPOINT_FIGURES:
-        if (out / figure).is_file():
-            (to / figure).parent.mkdir(parents=True, exist_ok=True)
-            written.append(Path(shutil.copy2(out / figure, to / figure)))
-    write_report(to, scale, 0.0, only)
-    return written + sorted(f for pattern in ("*.md", "*.csv", "*.png") for f in to.rglob(pattern)
-                            if published.DATA not in f.relative_to(to).parts)
+        os.replace(to, old)
+    os.replace(new, to)
+    shutil.rmtree(old, ignore_errors=True)
+    return sorted(p for p in to.rglob("*") if p.is_file())
 
 
 def rebuild(folder: Path) -> Path:
