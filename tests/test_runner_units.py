@@ -768,16 +768,22 @@ def git_repo(path):
     return g("rev-parse", "HEAD")
 
 
-def test_provenance_gives_the_commit_and_whether_tracked_files_changed(tmp_path, monkeypatch):
-    """The checkout is the folder above the package: runner.py's grandparent. A file git does not
-    track leaves it clean; a changed tracked file makes it dirty."""
+def test_provenance_says_dirty_when_the_code_differs_from_the_commit(tmp_path, monkeypatch):
+    """The checkout is the folder above the package: runner.py's grandparent. Files outside the code
+    (notes, docs, results) leave it clean, tracked or not; a changed file of the code, or a new one
+    among it, makes it dirty."""
     repo = tmp_path / "repo"
     commit = git_repo(repo)
     (repo / "pkg").mkdir()
     monkeypatch.setattr(runner, "__file__", str(repo / "pkg" / "runner.py"))
     (repo / "untracked.txt").write_text("new\n")
+    (repo / "tracked.txt").write_text("changed\n")                    # not code: a run's code is unchanged
     assert runner.provenance()["git"] == dict(commit=commit, dirty=False)
-    (repo / "tracked.txt").write_text("changed\n")
+    (repo / "envs").mkdir()
+    (repo / "envs" / "new.py").write_text("x = 1\n")                  # a new module among the code
+    assert runner.provenance()["git"] == dict(commit=commit, dirty=True)
+    (repo / "envs" / "new.py").unlink()
+    (repo / "setup.py").write_text("")
     assert runner.provenance()["git"] == dict(commit=commit, dirty=True)
 
 
