@@ -154,3 +154,43 @@ def test_a_checkpoints_figure_is_drawn_again_from_what_it_kept(tmp_path, monkeyp
     (tmp_path / "qhat.png").unlink()
     assert sq.qhat_figure(None, tmp_path, "t").read_bytes() == first
     assert sq.qhat_figure(None, tmp_path / "none", "t") is None
+
+
+def test_the_published_rows_configs_and_manifest_by_hand(tmp_path, monkeypatch):
+    """A sweep experiment of two jobs: each job's seeds, commit and dirty flag; rows sorted by seed and
+    episode with env_steps counted per seed; floats to 7 digits; a plain run folder is one job; the
+    stamp names what published it and when."""
+    exp = tmp_path / "sweep" / "e"
+    for j, (seeds, commit, dirty) in enumerate((([10, 11], "a" * 40, False), ([12], "b" * 40, True))):
+        (exp / "jobs" / f"j{j:03d}").mkdir(parents=True)
+        (exp / "jobs" / f"j{j:03d}" / "config.json").write_text(json.dumps(
+            {"run": {"seeds": seeds}, "git": {"commit": commit, "dirty": dirty}}))
+    (exp / "config.json").write_text(json.dumps({"run": {"env": "square", "seeds": [10, 11, 12]}}))
+    pd.DataFrame(dict(seed=[11, 10, 10], episode=[1, 2, 1], steps=[5, 7, 3], wall_s=[0.123456789, 1.0, 2.0],
+                      cpu_s=[9.0] * 3, us_per_step=[1.0] * 3)).to_csv(exp / "episodes.csv", index=False)
+    assert published.job_commits(exp) == [dict(seeds=[10, 11], commit="a" * 40, dirty=False),
+                                          dict(seeds=[12], commit="b" * 40, dirty=True)]
+    to = tmp_path / "pub"
+    written = published.write_data(tmp_path / "sweep", to, ["e"], {"scale": "s"})
+    assert sorted(p.name for p in written) == ["e.csv.xz", "e.json", "manifest.json"]
+    assert published.manifest(to) == {"scale": "s", "experiments": ["e"]}
+    with lzma.open(to / "data" / "e.csv.xz", "rt") as f:
+        assert f.read().splitlines() == ["seed,episode,steps,wall_s", "11,1,5,0.1234568", "10,2,7,1", "10,1,3,2"]
+    run = published.load(to, "e")
+    assert run.path == to / "data" / "e" and list(run.df.index) == [0, 1, 2]
+    assert run.df[["seed", "episode", "env_steps"]].values.tolist() == [[10, 1, 3], [10, 2, 10], [11, 1, 5]]
+    assert run.config["jobs"][1] == dict(seeds=[12], commit="b" * 40, dirty=True)
+    assert published.commits_of(run) == ["aaaaaaa", "bbbbbbb-dirty"]
+    from trl_dgpq.analysis.runs import Run
+    assert published.commits_of(Run(exp, run.df, {"run": {}})) == ["aaaaaaa", "bbbbbbb-dirty"]   # a sweep's jobs
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    (plain / "config.json").write_text(json.dumps({"run": {"seeds": [3]}, "git": {}}))
+    assert published.job_commits(plain) == [dict(seeds=[3], commit=None, dirty=None)]
+    assert published.commits_of(Run(plain, run.df, {"run": {}})) == ["?"]
+    assert published.commits_of(Run(tmp_path / "nowhere.csv", run.df, None)) == []
+    monkeypatch.setattr(runner, "provenance", lambda: {"git": {"commit": "c" * 40, "dirty": True}})
+    monkeypatch.setattr(published.time, "strftime", lambda fmt: {"%Y-%m-%d %H:%M": "2026-01-02 03:04"}[fmt])
+    assert published.stamp("report", ("f16",), "cmd") == dict(scale="report", only=["f16"], command="cmd",
+                                                             published="2026-01-02 03:04", commit="c" * 40, dirty=True)
+    assert published.stamp("quick", None, "cmd")["only"] == []

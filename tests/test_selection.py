@@ -236,3 +236,27 @@ def test_the_seeds_development_explored_are_never_published():
     check_reportable(resolve_config(env="square", agent="dgpq", seeds=[10, 99]), publication=True)
     check_reportable(resolve_config(env="square", agent="dgpq", seeds=[3, 9]))      # a user's own report: fine
     assert all(min(c["run"]["seeds"]) == 10 for c in reproduce.experiments("report").values())
+
+
+def test_the_refusals_in_full():
+    from trl_dgpq.collectors.experiment import resolve_config
+    one = resolve_config(env="square", agent="dgpq", seeds=[3, 10])
+    with pytest.raises(SelectionSeedsError) as err:
+        check_reportable(one, "exp", publication=True)
+    assert str(err.value) == ("exp (dgpq on square, preset 'shaped'): seed 3 was explored while the hand-set presets "
+                              "and the claims were chosen, so nothing is published on them: use seeds from 10 up "
+                              "(reporting seeds are 0-99, less 0-9)")
+    with pytest.raises(SelectionSeedsError) as err:
+        check_reportable(resolve_config(env="square", agent="dgpq", seeds=[10, 100]))
+    assert str(err.value) == ("dgpq on square, preset 'shaped': seed 100 outside the reporting seeds: reporting seeds "
+                              "are 0-99 (the others are for studies and validations)")
+    with pytest.raises(SelectionSeedsError) as err:
+        check_reportable({"run": {"env": "square", "agent": "dgpq", "preset": "shaped", "seeds": []}}, "exp")
+    assert str(err.value) == "exp: its config names no seeds, so nothing says it may be reported on"
+    from trl_dgpq.selection import check_selection_seeds
+    with pytest.raises(ValueError) as err:
+        check_selection_seeds(range(0, 7), "tuning seeds")
+    assert str(err.value).startswith("tuning seeds [0, 1, 2, ..., 6] (7) are reporting seeds")
+    with pytest.raises(ValueError) as err:
+        check_selection_seeds(range(0, 6), "tuning seeds")
+    assert str(err.value).startswith("tuning seeds [0, 1, 2, 3, 4, 5] are reporting seeds")

@@ -101,7 +101,8 @@ def check_reportable(config: dict, name: Optional[str] = None, publication: bool
     looked = seeds & set(EXPLORED) if publication else set()
     if looked:
         raise SelectionSeedsError(
-            f"{who}: {'seed' if len(looked) == 1 else 'seeds'} {seeds_text(looked)} were explored while the hand-set "
+            f"{who}: {'seed' if len(looked) == 1 else 'seeds'} {seeds_text(looked)} "
+            f"{'was' if len(looked) == 1 else 'were'} explored while the hand-set "
             f"presets and the claims were chosen, so nothing is published on them: use seeds from {FIRST_REPORTING} "
             f"up (reporting seeds are {_reporting_text()}, less {EXPLORED.start}-{EXPLORED.stop - 1})")
     outside = seeds - set(REPORTING)
