@@ -177,7 +177,12 @@ def test_the_published_rows_configs_and_manifest_by_hand(tmp_path, monkeypatch):
     with lzma.open(to / "data" / "e.csv.xz", "rt") as f:
         assert f.read().splitlines() == ["seed,episode,steps,wall_s", "11,1,5,0.1234568", "10,2,7,1", "10,1,3,2"]
     run = published.load(to, "e")
-    assert run.path == to / "data" / "e" and list(run.df.index) == [0, 1, 2]
+    assert run.path == to / "data" / "e" and list(run.df.index) == [0, 1, 2] and "index" not in run.df
+    lean = tmp_path / "lean" / "f"                         # a run that never wrote cpu_s: kept as it is
+    shutil.copytree(exp, lean)
+    pd.read_csv(exp / "episodes.csv").drop(columns=["cpu_s", "us_per_step"]).to_csv(lean / "episodes.csv", index=False)
+    published.write_data(tmp_path / "lean", tmp_path / "pub2", ["f"], {})
+    assert list(published.load(tmp_path / "pub2", "f").df.columns) == ["seed", "episode", "steps", "wall_s", "env_steps"]
     assert run.df[["seed", "episode", "env_steps"]].values.tolist() == [[10, 1, 3], [10, 2, 10], [11, 1, 5]]
     assert run.config["jobs"][1] == dict(seeds=[12], commit="b" * 40, dirty=True)
     assert published.commits_of(run) == ["aaaaaaa", "bbbbbbb-dirty"]

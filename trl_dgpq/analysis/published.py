@@ -54,11 +54,10 @@ def job_commits(folder: Path) -> list:
 
 def write_data(out: Path, to: Path, names: list, manifest: dict) -> list:
     """The rows and configs of ``names`` (finished experiments of the sweep in ``out``) into
-    ``to/data``, replacing what it held, and the manifest; returns the paths written."""
+    ``to/data`` (a new folder: ``reproduce.publish`` builds a publication apart, then puts it in
+    place), and the manifest; returns the paths written."""
     data = to / DATA
     data.mkdir(parents=True, exist_ok=True)
-    for old in list(data.glob("*.csv.xz")) + list(data.glob("*.json")):
-        old.unlink()
     written = []
     for name in names:
         folder = out / name
