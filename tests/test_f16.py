@@ -275,21 +275,30 @@ from trl_dgpq.envs.f16.baselines import LQRConfig, LQRPolicy, PDConfig, PDPolicy
 from trl_dgpq.envs.f16.dynamics import B  # noqa: E402
 
 
-def discretised_by_scipy(dt):
-    """(A_d, B_d) of the 5-D model for an elevator held ``dt`` seconds, by scipy's matrix exponential."""
+def continuous_by_hand(a4, b4):
+    """The 5-D model (h first, hdot = V_T0 (theta - alpha)) around a 4-D (A, B), in numpy."""
+    a, b = np.zeros((5, 5)), np.zeros(5)
+    a[1:, 1:], b[1:] = np.asarray(a4), np.asarray(b4)
+    a[0, 2], a[0, 3] = -V_T0, V_T0
+    return a, b
+
+
+def discretised_by_scipy(dt, model=None):
+    """(A_d, B_d) of the 5-D model for an elevator held ``dt`` seconds, by scipy's matrix exponential
+    (``model``: another 4-D (A, B) than the linearisation)."""
     scipy_linalg = pytest.importorskip("scipy.linalg")
-    a, b = (t.numpy() for t in continuous())
+    a, b = (t.numpy() for t in continuous()) if model is None else continuous_by_hand(*model)
     m = np.zeros((6, 6))
     m[:5, :5], m[:5, 5] = a, b
     e = scipy_linalg.expm(m * dt)
     return e[:5, :5], e[:5, 5]
 
 
-def lqr_gain_by_hand(dt, r=0.3):
+def lqr_gain_by_hand(dt, r=0.3, model=None):
     """K of the LQR for x'Qx (Q: (h/100)^2 + (hdot/100)^2) + r u^2, from scipy's Riccati solver
     on the model discretised by scipy's matrix exponential (a decision of ``dt`` seconds)."""
     scipy_linalg = pytest.importorskip("scipy.linalg")
-    ad, bd = discretised_by_scipy(dt)
+    ad, bd = discretised_by_scipy(dt, model)
     rate = np.array([0.0, 0.0, -V_T0, V_T0, 0.0]) / 100
     q = np.diag([1e-4, 0, 0, 0, 0]) + np.outer(rate, rate)
     p = scipy_linalg.solve_discrete_are(ad, bd[:, None], q, np.array([[r]]))
@@ -509,12 +518,13 @@ from trl_dgpq.agents.base import learning_reward  # noqa: E402
 from trl_dgpq.envs.f16.presets import FLIGHT_05  # noqa: E402
 
 
-def potential_by_hand(x, dt, steps, elevator_deg, r, gamma):
+def potential_by_hand(x, dt, steps, elevator_deg, r, gamma, model=None):
     """The noiseless, unquantised LQR flown from x: a decision of ``steps`` simulator steps holds
     u = -K x (K from scipy's Riccati solver and matrix exponential), each step costing the reward's
-    |h|/100 + |hdot|/100 + |u|/elevator_deg; discounted per decision until gamma^t < 1e-3."""
-    k = lqr_gain_by_hand(dt * steps, r)
-    ad, bd = discretised_by_scipy(dt)
+    |h|/100 + |hdot|/100 + |u|/elevator_deg; discounted per decision until gamma^t < 1e-3. With
+    ``model`` (a 4-D (A, B)), the designer's: both the gain and the flight are that model's."""
+    k = lqr_gain_by_hand(dt * steps, r, model)
+    ad, bd = discretised_by_scipy(dt, model)
     cost, t = 0.0, 0
     while gamma ** t >= 1e-3:
         u = -k @ x
@@ -535,6 +545,39 @@ def test_the_potential_is_the_noiseless_lqr_flights_discounted_cost(steps, eleva
     phi = env.potential(states)
     for x, value in zip(states.numpy(), phi.tolist()):
         assert value == pytest.approx(potential_by_hand(x, 0.05, steps, elevator_deg, r, gamma), rel=1e-9, abs=1e-12)
+
+
+def test_a_wrong_model_is_a_fixed_draw_of_factors_within_the_error():
+    """Each nonzero entry of A and B scaled by a factor in [1 - e, 1 + e], zeros kept, the same for a
+    draw every time, another for another draw; error 0 is the linearisation itself."""
+    from trl_dgpq.envs.f16.dynamics import B, perturbed
+    assert perturbed(0.0, 7) == (A, B)
+    a, b = perturbed(0.2, 3)
+    ratio = torch.cat([(a / A)[A != 0], (b / B)[B != 0]])
+    assert bool((ratio >= 0.8).all() and (ratio <= 1.2).all()) and float(ratio.std()) > 0.05   # spread, not one factor
+    assert bool((a[A == 0] == 0).all()) and bool((b[B == 0] == 0).all())
+    assert all(torch.equal(x, y) for x, y in zip(perturbed(0.2, 3), (a, b)))
+    assert not torch.equal(perturbed(0.2, 4)[0], a)
+    assert float(((perturbed(0.5, 3)[0] / A)[A != 0] - 1).abs().max()) > 0.2    # a larger error, further out
+
+
+@pytest.mark.parametrize("error, draw", [(0.2, 0), (0.5, 1)])
+def test_the_potential_from_a_wrong_model_is_that_models_lqr_flight(error, draw):
+    """The designer's (wrong) linearisation gives both the gain and the flight whose cost Φ is,
+    computed here by scipy on that model; it differs from the true model's Φ."""
+    from trl_dgpq.envs.f16.dynamics import perturbed
+    cfg = dict(potential="lqr", decision_steps=10, potential_gamma=0.9, potential_model_error=error,
+               potential_model_draw=draw)
+    env = F16Env([0], **cfg)
+    x = torch.tensor([[20.0, 0.0, 0.01, 0.01, 0.0], [-35.0, 4.0, -0.02, 0.03, 0.05]], dtype=torch.float64)
+    model = [t.numpy() for t in perturbed(error, draw)]
+    phi = env.potential(x)
+    for state, value in zip(x.numpy(), phi.tolist()):
+        assert value == pytest.approx(potential_by_hand(state, 0.05, 10, 1.0, 0.1, 0.9, model), rel=1e-9)
+    true = F16Env([0], potential="lqr", decision_steps=10, potential_gamma=0.9).potential(x)
+    assert not torch.allclose(phi, true, rtol=1e-3)
+    with pytest.raises(ValueError, match="the lqr potential's model error"):
+        F16Env([0], potential="cost", potential_model_error=0.2)
 
 
 @pytest.mark.parametrize("steps, gamma", [(10, 0.9), (5, 0.95)])

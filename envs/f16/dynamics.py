@@ -23,19 +23,34 @@ B = torch.tensor([1.7370e-01, -2.1499e-03, 0.0, -1.7555e-01], dtype=torch.float6
 STATE = ("h", "v_t", "alpha", "theta", "q")  # the 5-D model's order
 
 
-def continuous() -> tuple:
-    """(A, B) of the 5-D model (h, V_T, α, θ, q) with ḣ = V_T0 (θ − α)."""
+def perturbed(error: float, draw: int) -> tuple:
+    """(A, B) with each entry scaled by its own factor, uniform in [1 - ``error``, 1 + ``error``],
+    from a generator seeded by ``draw`` alone: a fixed, recorded wrong model (a zero stays zero;
+    altitude's row, ḣ = V_T0 (θ − α), is kinematics, not a model, and ``continuous`` keeps it).
+    ``error`` 0: the true linearisation itself."""
+    if error == 0:
+        return A, B
+    g = torch.Generator().manual_seed(int(draw))
+    factors = 1 + error * (2 * torch.rand(4 * 4 + 4, generator=g, dtype=torch.float64) - 1)
+    return A * factors[:16].view(4, 4), B * factors[16:]
+
+
+def continuous(model=None) -> tuple:
+    """(A, B) of the 5-D model (h, V_T, α, θ, q) with ḣ = V_T0 (θ − α); ``model``: the 4-D (A, B)
+    it is built on (default: the true linearisation)."""
+    a4, b4 = model if model is not None else (A, B)
     a = torch.zeros(5, 5, dtype=torch.float64)
-    a[1:, 1:] = A
+    a[1:, 1:] = a4
     a[0, 2], a[0, 3] = -V_T0, V_T0
     b = torch.zeros(5, dtype=torch.float64)
-    b[1:] = B
+    b[1:] = b4
     return a, b
 
 
-def discretise(dt: float) -> tuple:
-    """(A_d, B_d): x_{k+1} = A_d x_k + B_d u_k for an elevator u_k (degrees) held over dt."""
-    a, b = continuous()
+def discretise(dt: float, model=None) -> tuple:
+    """(A_d, B_d): x_{k+1} = A_d x_k + B_d u_k for an elevator u_k (degrees) held over dt (of
+    ``model``'s 4-D (A, B); default: the true linearisation)."""
+    a, b = continuous(model)
     m = torch.zeros(6, 6, dtype=torch.float64)
     m[:5, :5], m[:5, 5] = a, b
     e = torch.linalg.matrix_exp(m * dt)

@@ -94,8 +94,16 @@ class F16Config:
                                           "closest to V; any value keeps the optimal policies)", within="[0, 1)")
     potential_r: float = setting(0.1, "the potential's LQR: cost of the elevator, per degree squared",
                                  within="(0, inf)")
+    potential_model_error: float = setting(0.0, "the lqr potential from a wrong model: each entry of the "
+                                                "linearisation's A and B scaled by its own factor in [1 - e, 1 + e] "
+                                                "(0: the true model)", within="[0, 1)")
+    potential_model_draw: int = setting(0, "which fixed draw of those factors (a seed of their own)",
+                                        within="[0, inf)")
 
     def cross_check(self) -> None:
+        if self.potential_model_error and self.potential != "lqr":
+            raise ValueError(f"potential_model_error {self.potential_model_error} is the lqr potential's model error; "
+                             f"the potential is {self.potential!r}")
         if (abs(self.h0) + self.h0_spread >= self.h_max
                 or abs(self.pitch0) + self.pitch0_spread >= self.attitude_max):
             raise ValueError(f"every start (h0 {self.h0} +- {self.h0_spread}, pitch0 {self.pitch0} +- "

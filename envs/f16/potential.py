@@ -23,7 +23,7 @@ import math
 import torch
 
 from .baselines import LQR_WEIGHTS, lqr_gain
-from .dynamics import V_T0, climb_rate, discretise, rows_times
+from .dynamics import V_T0, climb_rate, discretise, perturbed, rows_times
 
 
 def horizon(gamma: float, tail: float = 1e-3) -> int:
@@ -32,13 +32,14 @@ def horizon(gamma: float, tail: float = 1e-3) -> int:
 
 
 def lqr_rows(dt: float, decision_steps: int, elevator_deg: float, r: float, gamma: float,
-             tail: float = 1e-3) -> tuple:
+             tail: float = 1e-3, model=None) -> tuple:
     """(G, w): rows (N, 5) and weights (N,) with Φ(x) = −Σ_n w_n |G_n · x|, over decisions
     until γᵗ < ``tail``. Each decision holds u = −K x (K: the LQR for a decision of
     ``dt · decision_steps``, elevator cost ``r``) over its simulator steps, each costing
-    |h|/100 + |ḣ|/100 + |u|/elevator_deg as the env's reward does."""
-    ad, bd = discretise(dt)
-    gain = lqr_gain(*discretise(dt * decision_steps), LQR_WEIGHTS, r)
+    |h|/100 + |ḣ|/100 + |u|/elevator_deg as the env's reward does. ``model``: the 4-D (A, B)
+    the designer believes (``dynamics.perturbed``): the gain and the flight are both its."""
+    ad, bd = discretise(dt, model)
+    gain = lqr_gain(*discretise(dt * decision_steps, model), LQR_WEIGHTS, r)
     decisions = horizon(gamma, tail)
     m, rows, weights = torch.eye(5, dtype=torch.float64), [], []
     for t in range(decisions):
@@ -54,7 +55,9 @@ class LQRPotential:
     """Φ of states (S, 5) in the env's units, (S,); each row independent of the others bit for bit."""
 
     def __init__(self, cfg, device="cpu"):
-        g, w = lqr_rows(cfg.dt, cfg.decision_steps, cfg.elevator_deg, cfg.potential_r, cfg.potential_gamma)
+        model = perturbed(cfg.potential_model_error, cfg.potential_model_draw)   # the true one at error 0
+        g, w = lqr_rows(cfg.dt, cfg.decision_steps, cfg.elevator_deg, cfg.potential_r, cfg.potential_gamma,
+                        model=model)
         self.rows_t, self.weights = g.T.contiguous().to(device), w.to(device)
 
     def __call__(self, state: torch.Tensor) -> torch.Tensor:
