@@ -98,10 +98,11 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str, judged: lis
     from trl_dgpq.analysis.figures import episode_figures
     for folder in ("square", "square-kernels"):
         (out / folder).mkdir(exist_ok=True)
-    learners = {n: r for n, r in runs.items() if r.agent != "random"}
-    named = list(learners.values())
-    episode_figures(named[:3], ["shaped", "report", "paper"], out / "square", title=title)
-    episode_figures(named[3:], ["RBF (exact GP)", "manifold (exact GP)"], out / "square-kernels", title=title)
+    presets = {"square-shaped": "shaped", "square-report": "report", "square-paper": "paper"}
+    kernels = {"square-shaped-exact": "RBF (exact GP)", "square-shaped-manifold": "manifold (exact GP)"}
+    for figure, names in (("square", presets), ("square-kernels", kernels)):   # each run labelled by its name
+        shown = [n for n in names if n in runs]
+        episode_figures([runs[n] for n in shown], [names[n] for n in shown], out / figure, title=title)
     from trl_dgpq.collectors.evaluate import job_folders
     shaped = runs.get("square-shaped")
     # rebuilt from published data (no checkpoint): drawn from what the run's figure showed, if kept
