@@ -333,6 +333,8 @@ def create(out, experiments: Dict[str, dict], jobs: List[Job], overwrite: bool =
     """Lay out a new sweep folder (refused if ``out`` holds anything, unless it holds a sweep
     and ``overwrite``)."""
     out = Path(out)
+    if out.exists() and not out.is_dir():  # else iterdir's raw "[Errno 20] Not a directory"
+        raise SweepError(f"--out {out} is a file, not a folder: choose another --out")
     if out.exists() and any(out.iterdir()):
         if not (out / SWEEP).is_file():
             raise SweepError(f"--out {out} is not empty and holds no sweep: choose another folder")
@@ -344,7 +346,10 @@ def create(out, experiments: Dict[str, dict], jobs: List[Job], overwrite: bool =
             shutil.rmtree(out / name, ignore_errors=True)
         for f in (SWEEP, REPORT):
             (out / f).unlink(missing_ok=True)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:  # a file on its path: "[Errno 20] Not a directory" alone names neither
+        raise SweepError(f"cannot create --out {out}: {err.strerror or err}: choose another --out") from None
     _write_experiments(out, experiments)
     _write_plan(out, experiments, jobs)
 
@@ -440,7 +445,7 @@ def load(out) -> tuple:
     out = Path(out)
     try:
         data = json.loads((out / SWEEP).read_text())
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):  # (a file given for the folder)
         raise SweepError(f"{out} holds no sweep to resume (no {SWEEP})") from None
     experiments = data["experiments"]
     jobs = [Job(j["experiment"], j["index"], j["seeds"], str(out / j["folder"]),

@@ -155,6 +155,17 @@ def test_help_and_a_typo_are_answered_without_importing_torch():
     assert proc.stdout == early.capture("train", None).replace(str(early.CORES), "1")
 
 
+def test_a_flag_given_as_flag_equals_value_goes_on_to_the_commands_parser(capsys):
+    """``trl-dgpq train --seeds=0-4 --episodes=3``: argparse's --flag=value form names options
+    train has, so the fast path lets it through to the parser (None), as it does a prefix with a
+    value (--epis=3); only the part before "=" is matched, so a flag no option begins with is
+    still refused, value and all."""
+    assert early.answer("train", ["--seeds=0-4", "--episodes=3"]) is None
+    assert early.answer("train", ["--epis=3", "--env", "square"]) is None
+    assert capsys.readouterr().err == ""
+    assert early.answer("train", ["--seeds=0-4", "--bogus=3"]) == 2
+    assert capsys.readouterr().err == "train.py: error: unrecognized arguments: --bogus=3 (see train.py --help)\n"
+
 def test_sweeps_help_shows_this_machines_cores(monkeypatch, capsys):
     monkeypatch.setattr("os.cpu_count", lambda: 48)
     assert early.answer("sweep", ["-h"]) == 0
@@ -182,6 +193,19 @@ def test_plot_refuses_in_one_line_naming_the_command_a_user_types(tmp_path, monk
     err = capsys.readouterr().err
     assert "cannot create the folder for the figures" in err and "Errno" not in err
 
+
+def test_plot_refuses_a_block_under_one_episode_in_one_line(tmp_path, capsys, saved_figures):
+    """--block is the episodes per plotted mean: 0 (or fewer) is refused in one line, exit 2, before
+    any figure; 1 is the smallest that plots."""
+    from tests.test_report import fake_run
+    from trl_dgpq.commands import plot
+    run = fake_run(tmp_path / "run", "f16", {0: [60, 60, 60]}, returns={0: [-9.0, -5.0, -2.0]}, agent="dgpq")
+    for block in ("0", "-3"):
+        assert plot.main([str(run), "--block", block]) == 2
+        assert capsys.readouterr().err == ("plot.py: error: --block must be >= 1 (episodes per plotted mean), "
+                                           f"got {block}\n")
+    assert not saved_figures and not list(run.glob("*.png"))
+    assert plot.main([str(run), "--block", "1"]) == 0
 
 def test_a_flag_that_means_something_else_per_config_shows_each_ones_help(capsys):
     with pytest.raises(SystemExit):

@@ -40,6 +40,18 @@ def test_a_rows_command_resolves_to_the_runs_config(settings, capsys):
         assert again[section] == config[section], section
 
 
+def test_a_rows_command_keeps_every_digit_of_a_float(capsys):
+    """A tuned learning rate such as 0.00039329768981208975 goes into the command whole (Python's
+    shortest repr, every digit): written to 6 significant digits (0.000393298) the command would
+    re-run another setting. Resolved by train's parser it gives the same float back."""
+    lr = 0.00039329768981208975
+    assert results.cli_value(lr) == "0.00039329768981208975"
+    assert results.cli_value([lr, 2.0]) == "0.00039329768981208975,2.0"
+    config = resolve_config(env="square", agent="dqn", seeds=[0], episodes=3, lr=lr)
+    command = results.train_command(config)
+    assert "agent.lr=0.00039329768981208975" in command.split()
+    assert config_of(command, capsys)["agent"]["lr"] == lr
+
 def test_a_row_is_the_domains_measure_over_each_seeds_last_episodes(tmp_path):
     """Square, last 2 episodes per seed: seed means 15, 25, 35, 100 -> median 30, IQM (the
     middle two of four) 30; 1 ms per step as the fake run's wall times say."""

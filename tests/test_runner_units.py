@@ -222,6 +222,18 @@ def test_keep_rows_refuses_a_file_missing_or_repeating_rows(tmp_path):
         folder.keep_rows({0: 2, 1: 1})
 
 
+def test_keep_rows_refuses_a_row_repeated_in_place_of_a_missing_one(tmp_path):
+    """Seed 0's episode 1 twice and its episode 2 missing: as many rows as the checkpoint covers
+    (3), but not the 3 episodes, so resume refuses the file (a count of rows alone would take it,
+    and the run would go on without episode 2's row); the file is left as it was."""
+    folder = RunFolder(tmp_path)
+    folder.append_rows(rows(0, [1, 1]) + rows(1, [1]))
+    before = (tmp_path / runner.EPISODES).read_bytes()
+    with pytest.raises(runner.RunError,
+                       match=r"the 3 episodes its checkpoint covers once each \(1 missing, 1 repeated\)"):
+        folder.keep_rows({0: 2, 1: 1})
+    assert (tmp_path / runner.EPISODES).read_bytes() == before
+
 def test_a_half_written_last_row_is_cut_off(tmp_path):
     folder = RunFolder(tmp_path)
     folder.append_rows(rows(0, [1, 2]))

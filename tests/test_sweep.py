@@ -335,6 +335,46 @@ def test_each_finished_job_reports_how_many_are_done_failed_and_to_go(tmp_path):
     assert [line.split(":")[0] for line in again] == ["a", "b"] and (tmp_path / "s" / "a" / "episodes.csv").is_file()
 
 
+def test_a_job_that_ended_unfinished_counts_as_not_finished_in_the_progress_line(tmp_path, monkeypatch):
+    """Each line counts the jobs that have ended (done + to go = all), and among them those that
+    did not finish: an interrupted job (Ctrl-C: it checkpointed, --resume goes on) is not
+    finished, nor is a killed or a failed one. Four jobs ending finished, interrupted, killed
+    and failed in turn (the backend stubbed): 0, 1, 2, 3 not finished."""
+    experiments = {"a": resolve_config(env="corridor", agent="constant", seeds=[0, 1, 2, 3], episodes=1)}
+    jobs = sweep.plan(experiments, tmp_path / "s", 1)
+    sweep.create(tmp_path / "s", experiments, jobs)
+    ends = [dict(status="finished"), dict(status="interrupted", reason="SIGINT"),
+            dict(status="killed", reason="killed by SIGKILL"), dict(status="failed", reason="exit code 1")]
+    monkeypatch.setattr(sweep, "run_local", lambda todo, workers, on_done: [on_done(j, r) for j, r in zip(todo, ends)])
+    lines = []
+    report = sweep.execute(tmp_path / "s", jobs, "local", 1, log=lines.append)
+    assert [line.split(";")[0] for line in lines] == [
+        "[1/4 jobs done, 0 not finished, 3 to go (1 running)", "[2/4 jobs done, 1 not finished, 2 to go (1 running)",
+        "[3/4 jobs done, 2 not finished, 1 to go (1 running)", "[4/4 jobs done, 3 not finished, 0 to go"]
+    assert [line.split("] ")[1] for line in lines] == [
+        "a job 0 (seeds 0): finished", "a job 1 (seeds 1): interrupted -- SIGINT",
+        "a job 2 (seeds 2): killed -- killed by SIGKILL", "a job 3 (seeds 3): failed -- exit code 1"]
+    assert [r["status"] for r in report.values()] == ["finished", "interrupted", "killed", "failed"]
+    assert not (tmp_path / "s" / "a" / "episodes.csv").exists()                # not merged: not all finished
+
+
+def test_an_out_that_is_a_file_is_refused_in_one_line(tmp_path, capsys):
+    """--out naming an existing regular file: one line naming it, exit 2 (not a raw "[Errno 20]
+    Not a directory"), and the file untouched; so too a folder under that file, and --resume of
+    the file."""
+    write(tmp_path)
+    blocker = tmp_path / "a-file"
+    blocker.write_text("mine")
+    assert sweep_script.main([str(tmp_path / "s.toml"), "--out", str(blocker)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"sweep.py: error: --out {blocker} is a file, not a folder: choose another --out\n"
+    assert sweep_script.main([str(tmp_path / "s.toml"), "--out", str(blocker / "sw")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"sweep.py: error: cannot create --out {blocker / 'sw'}: Not a directory: choose another --out\n"
+    assert sweep_script.main(["--resume", str(blocker)]) == 2
+    assert capsys.readouterr().err == f"sweep.py: error: {blocker} holds no sweep to resume (no sweep.json)\n"
+    assert blocker.read_text() == "mine"
+
 def test_the_time_left_is_weighed_by_each_jobs_planned_steps():
     """Square (200-step cap) 2 seeds x 10 episodes: 4,000 seed-steps; with a budget of 500 env
     steps: 1,000; liquidation 3 seeds x 4 episodes of 60 trades: 720. One minute for the first

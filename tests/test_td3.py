@@ -164,3 +164,28 @@ def test_td3_memory_estimate_is_the_full_replay_as_stored():
     stored = agent.replay.storage._storage
     assert sum(t.nbytes for t in stored.values(True, True)) == 2 * 8 * (2 * 8 * 4 + 4 + 4 + 2) == 1184
     assert memory_estimate(config) == 1184
+
+
+def test_a_time_limit_bootstraps_and_a_termination_does_not():
+    """The TD target y = r + gamma (1 - terminated) min(Q1', Q2'): a step cut by a time limit
+    (done, not terminated: a domain's max_steps) bootstraps like any other, a terminal one does
+    not. Target critics made constant (Q1' = 5, Q2' = 7: min 5 whatever the action) and online
+    ones zero, so each element's loss is 2 y^2 by hand: rewards 1, -1, 2 with gamma 0.9 give
+    y = 1 + 4.5, -1 + 4.5 (truncated) and 2 (terminated): 60.5, 24.5, 8."""
+    agent = TD3(TD3Config(gamma=0.9, **SMALL), [0], 3, SYM)
+    with torch.no_grad():
+        for name in ("critic", "target_critic"):
+            for v in agent.nets[name].state_dict().values():
+                v.zero_()
+        target = agent.nets["target_critic"].state_dict()
+        target["net.net.q1.4.bias"].fill_(5.0)
+        target["net.net.q2.4.bias"].fill_(7.0)
+    done = torch.tensor([[[False], [True], [True]]])
+    terminated = torch.tensor([[[False], [False], [True]]])
+    g = torch.Generator().manual_seed(0)
+    batch = TensorDict({"observation": torch.randn(1, 3, 3, generator=g), "action": torch.rand(1, 3, 1, generator=g),
+                        "next": {"observation": torch.randn(1, 3, 3, generator=g),
+                                 "reward": torch.tensor([[[1.0], [-1.0], [2.0]]]),
+                                 "done": done, "terminated": terminated}}, batch_size=[1, 3])
+    loss = agent.value_loss(batch, torch.randn(1, 3, 1, generator=g))
+    torch.testing.assert_close(loss, torch.tensor([[60.5, 24.5, 8.0]]))

@@ -1,7 +1,9 @@
 """scripts/tune.py (trl_dgpq/study.py): Optuna studies of an agent's settings, every trial a run
 with the same budget; its objective, search spaces, seeds, pruning, resume and tuned presets."""
 import json
+import os
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -17,6 +19,7 @@ from trl_dgpq.agents import agent_class
 from trl_dgpq.analysis.objective import Objective, objective, stage
 from trl_dgpq.analysis.runs import Run, load_run
 from trl_dgpq.analysis.runs import read_csv_exact
+from trl_dgpq.collectors import runner
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS, RunConfig, parse_seeds, resolve_config, run_experiment
 from trl_dgpq.commands import tune
 from trl_dgpq.envs import domains
@@ -687,3 +690,235 @@ def test_a_presets_provenance_records_its_study_relative_to_the_checkout():
     assert portable(f"sqlite:///{root / 'runs/tune/x/study.db'}") == "sqlite:///runs/tune/x/study.db"
     assert portable("sqlite:////elsewhere/study.db") == "sqlite:////elsewhere/study.db"
     assert portable("postgresql://host/db") == "postgresql://host/db"
+
+
+# ---------------------------------------------------------------- directions, validation, retries, hosts, signals
+F16 = {"env": "f16", "agent": "dgpq", "episodes": "4"}
+
+
+def f16_study(tmp_path, objective):
+    """An F-16 study scored by ``objective`` ('measure': the episode reward, more is better;
+    'report': steps to the threshold, fewer is better) holding four hand-made complete trials:
+    trial 0 the base preset's (lipschitz 1, value 5), then lipschitz 2, 3, 4 valued 9, 7, 3."""
+    study = Study.open(tmp_path / "study", None, F16, {"objective": objective, "first": "sampled"})
+    for number, (value, lipschitz) in enumerate([(5.0, 1.0), (9.0, 2.0), (7.0, 3.0), (3.0, 4.0)]):
+        first = {"first": "preset default"} if number == 0 else {}
+        study.load().add_trial(optuna.trial.create_trial(value=value, user_attrs={"settings": {"lipschitz": lipschitz},
+                                                                                  **first}))
+    return study
+
+
+@pytest.mark.parametrize("objective, direction, better, best, lipschitz, validated", [
+    ("measure", "maximize", "higher", 1, 2.0, (2, 3.0)),     # 9 is the highest; on validation 8 > 6 > 4
+    ("report", "minimize", "lower", 3, 4.0, (1, 2.0))])      # 3 is the lowest; on validation 4 < 6 < 8
+def test_a_maximised_objective_calls_the_highest_trial_best(tmp_path, monkeypatch, objective, direction, better,
+                                                             best, lipschitz, validated):
+    """F-16's measure is the episode reward: a study on it maximises (Optuna's direction), its
+    summary and --write-preset take the trial of the highest value (9, trial 1), and among
+    validated trials the highest there (8, trial 2); the same trials scored by steps to the
+    threshold take the lowest (3, trial 3; validated: 4, trial 1). A study that minimised a
+    return would write its worst trial."""
+    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+    study = f16_study(tmp_path, objective)
+    assert study.load().direction == optuna.study.StudyDirection[direction.upper()]
+    value = {1: 9, 3: 3}[best]
+    assert re.match(rf"best: trial {best}, \D+ {value} \({better} is better, IQM over 5 seeds\) with "
+                    rf"lipschitz={lipschitz:g}; 4/4 trials done", study.summary(4)), study.summary(4)
+    name, path = study.write_preset()
+    entry = json.loads(path.read_text())["f16"]["dgpq"][name]
+    assert entry["preset"]["agent"]["lipschitz"] == lipschitz and entry["provenance"]["trial"] == best
+    assert entry["provenance"]["value"] == value and entry["provenance"]["direction"] == direction
+    study.load().set_user_attr("validation", {"seeds": [1005, 1006], "values": {"1": 4.0, "2": 8.0, "3": 6.0}})
+    study.write_preset()
+    entry = json.loads(path.read_text())["f16"]["dgpq"][name]
+    assert (entry["provenance"]["trial"], entry["preset"]["agent"]["lipschitz"]) == validated
+
+
+@pytest.mark.parametrize("objective, k, picked, on_validation", [
+    ("measure", 1, [1, 0], {1: 6.0, 0: 8.0}),     # the best (9) loses to the base preset (5) on other seeds
+    ("report", 1, [3, 0], {3: 6.0, 0: 4.0}),      # the best (3) loses to the base preset (5) on other seeds
+    ("measure", 3, [1, 2, 0], {1: 6.0, 2: 7.0, 0: 8.0}),   # the base preset among the 3 best: run once
+])
+def test_validate_reruns_the_base_presets_trial_besides_the_k_best(tmp_path, monkeypatch, objective, k, picked,
+                                                                    on_validation):
+    """--validate K reruns the K best trials in the study's direction and trial 0 (marked first:
+    the base preset's) even when it is not among them, on the validation seeds with each trial's
+    settings; so when the tuning-seed winner loses there, --write-preset falls back to the base
+    preset's settings (lipschitz 1). Runs and their scores are stubbed: trial n scores
+    ``on_validation[n]``."""
+    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+    study = f16_study(tmp_path, objective)
+    ran = []
+    monkeypatch.setattr(Study, "run_to_end", staticmethod(lambda path, config: ran.append((int(path.name), config))))
+    monkeypatch.setattr("trl_dgpq.study.load_run", lambda path: path)
+    monkeypatch.setattr("trl_dgpq.study.stage", lambda run, lengths: run)
+    monkeypatch.setattr(Objective, "value", lambda self, run: on_validation[int(run.name)])
+    lines = []
+    assert study.validate(k, [1005, 1006], log=lines.append) == on_validation
+    assert [n for n, _ in ran] == picked
+    for n, config in ran:
+        assert config["run"]["seeds"] == [1005, 1006] and config["agent"]["lipschitz"] == n + 1.0
+    assert lines[-1].endswith("(5 on the tuning seeds, the base preset)") and lines[-1].startswith("trial 0: ")
+    name, path = study.write_preset()
+    entry = json.loads(path.read_text())["f16"]["dgpq"][name]
+    assert entry["provenance"]["trial"] == 0 and entry["preset"]["agent"]["lipschitz"] == 1.0
+    assert entry["provenance"]["validation"] == {"seeds": [1005, 1006], "value": 8.0 if objective == "measure" else 4.0,
+                                                 "trials": sorted(picked)}
+
+
+@pytest.mark.parametrize("agent, flag, value, where, searched", [
+    ("dqn", "lr", "0.0005", ("lr",), {"hidden", "target_update_interval", "eps_end", "exploration_steps",
+                                      "batch_size", "buffer_size", "train_freq", "gradient_steps"}),
+    ("dgpq", "lengthscale", "0.5", ("gp", "lengthscale"), {"lipschitz", "sigma_tol2", "eps1", "noise_var"})])
+def test_a_setting_given_on_tunes_command_line_is_kept_not_searched(tmp_path, monkeypatch, agent, flag, value, where,
+                                                                     searched):
+    """``tune --lr 0.0005`` (DQN) or ``--lengthscale 0.5`` (DGPQ's, under gp): the setting leaves
+    the search space; neither the base preset's trial nor a TPE-drawn one draws it, and each
+    trial's run config keeps the value given. (Runs stubbed: the config reaching the run is
+    caught.)"""
+    study = Study.open(tmp_path / "study", None, {"env": "square", "agent": agent, "episodes": "4", flag: value}, {})
+    assert set(study.space) == searched
+    configs = []
+
+    def caught(self, trial, path, config):
+        configs.append(config)
+        raise LookupError("no run")
+    monkeypatch.setattr(Study, "open_run", caught)
+    optuna_study = study.load()
+    for _ in range(2):                            # the base preset's trial, then one TPE draws
+        trial = optuna_study.ask()
+        with pytest.raises(LookupError):
+            study.run_stages(trial)
+        optuna_study.tell(trial, 1.0)
+        assert set(trial.user_attrs["settings"]) == searched and not any(p.startswith(flag) for p in trial.params)
+    first, drawn = trials_of(tmp_path / "study")
+    assert "first" in first.user_attrs and "first" not in drawn.user_attrs
+    for config in configs:
+        node = config["agent"]
+        for p in where:
+            node = node[p]
+        assert node == float(value)
+
+
+def test_a_trial_stopped_before_drawing_its_settings_is_retried_with_the_same_ones(tmp_path, monkeypatch):
+    """SIGTERM while the base preset's trial is asked for (before it drew a setting): next_trial
+    raises Stopped once the trial is marked with its process, fails it as retried and enqueues its
+    fixed values again (the preset's, not fresh draws), still marked first, as retry_of the trial
+    whose folder holds its run (trial 0's: a retry of a retry goes on from it too). The retry
+    then draws SMALL_DQN's values, so its run goes on from that folder instead of starting over."""
+    from trl_dgpq.study import HOST, Stopped, stop_on_signals
+    out = tmp_path / "study"
+    study = Study.open(out, None, {"env": "square", "agent": "dqn", "episodes": "4"}, {})
+    (out / "trials" / "0000").mkdir(parents=True)           # trial 0 ran, then its process died
+    ask = optuna.study.Study.ask
+
+    def ask_then_signal(self, *args, **kwargs):
+        trial = ask(self, *args, **kwargs)
+        os.kill(os.getpid(), signal.SIGTERM)
+        return trial
+    preset = dict(lr=1e-3, hidden=(64, 64), target_update_interval=100, eps_end=0.05, exploration_steps=2_000,
+                  batch_size=64, buffer_size=10_000, train_freq=1, gradient_steps=1)
+    for number in (0, 1):                                    # trial 0, then its retry, each stopped when asked for
+        monkeypatch.setattr(optuna.study.Study, "ask", ask_then_signal)
+        with stop_on_signals() as stop, pytest.raises(Stopped) as exc:
+            study.next_trial(5, stop)
+        monkeypatch.setattr(optuna.study.Study, "ask", ask)
+        assert exc.value.signum == signal.SIGTERM
+        *_, stopped, retry = trials_of(out)
+        assert stopped.number == number and stopped.state == optuna.trial.TrialState.FAIL and not stopped.params
+        assert stopped.user_attrs["retried"] == "interrupted by SIGTERM"
+        assert (stopped.user_attrs["host"], stopped.user_attrs["pid"]) == (HOST, os.getpid())
+        assert retry.state == optuna.trial.TrialState.WAITING
+        assert retry.user_attrs == {"retry_of": 0, "first": "preset shaped"}
+    trial = study.load().ask()
+    assert trial.number == 2 and suggest(trial, study.space, 0) == preset
+
+
+def test_dead_trial_detection_judges_only_this_machines_trials(tmp_path, monkeypatch):
+    """With a shared --storage, a running trial marked by another host is that host's to judge:
+    its pid means nothing here. Every pid reads as gone: this host's trial is failed and
+    re-queued, the other host's stays running, as does an unmarked one asked for just now."""
+    from trl_dgpq.study import HOST
+    study = Study.open(tmp_path / "study", None, {"env": "square", "agent": "dqn", "episodes": "4"},
+                       {"first": "sampled"})
+    optuna_study = study.load()
+    here, there, unmarked = optuna_study.ask(), optuna_study.ask(), optuna_study.ask()
+    for trial, host in ((here, HOST), (there, HOST + "-elsewhere")):
+        trial.set_user_attr("host", host)
+        trial.set_user_attr("pid", 4321)
+    monkeypatch.setattr(runner, "_alive", lambda pid: False)
+    study.recover(study.load())
+    states = {t.number: (t.state.name, t.user_attrs.get("retried"), t.user_attrs.get("retry_of"))
+              for t in trials_of(tmp_path / "study")}
+    assert states == {here.number: ("FAIL", "process 4321 is gone", None), there.number: ("RUNNING", None, None),
+                      unmarked.number: ("RUNNING", None, None), 3: ("WAITING", None, here.number)}
+
+
+def test_a_presets_provenance_counts_every_ended_trial(tmp_path, monkeypatch):
+    """"trials" in --write-preset's provenance is what the study's --trials counts: complete (2),
+    pruned (1) and failed in their own code (1), not a trial failed only to hand it to a retry: 4."""
+    from optuna.trial import TrialState, create_trial
+    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+    study = Study.open(tmp_path / "study", None, {"env": "square", "agent": "dqn", "episodes": "4"},
+                       {"first": "sampled"})
+    for trial in [create_trial(value=7.0, user_attrs={"settings": {"lr": 0.004}}),
+                  create_trial(state=TrialState.PRUNED, user_attrs={"settings": {"lr": 0.002}}),
+                  create_trial(state=TrialState.FAIL, user_attrs={"settings": {"lr": 0.003}, "error": "ValueError: x"}),
+                  create_trial(state=TrialState.FAIL, user_attrs={"retried": "process 1 is gone"}),
+                  create_trial(value=9.0, user_attrs={"settings": {"lr": 0.001}})]:
+        study.load().add_trial(trial)
+    _, path = study.write_preset()
+    provenance = json.loads(path.read_text())["square"]["dqn"]["tuned"]["provenance"]
+    assert provenance["trials"] == 4 and provenance["trial"] == 0
+    assert study.summary(4).endswith("4/4 trials done (2 complete, 1 pruned, 1 failed)")
+
+
+def test_a_study_keeps_its_pruner(tmp_path, capsys):
+    """--prune-after is the MedianPruner's n_startup_trials: continuing a study with another would
+    change its pruner mid-study, so it is refused in one line before any trial; the same value,
+    or none, continues it."""
+    out = tmp_path / "study"
+    Study.open(out, None, {"env": "square", "agent": "dgpq", "episodes": "4"}, {"prune_after": 3})
+    with pytest.raises(SystemExit) as exc:
+        tune.main(["--out", str(out), "--trials", "2", "--prune-after", "5"])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err == "tune.py: error: the study keeps its prune_after 3: continue it without " \
+                                      "--prune-after\n"
+    assert [t.state.name for t in trials_of(out)] == ["WAITING"]                     # nothing ran
+    stored = Study.stored_request(f"sqlite:///{out / 'study.db'}", "study")
+    assert Study.reopen_request(stored, {}, {"prune_after": 3, "trials": 9})["tune"]["prune_after"] == 3
+    assert Study.open(out, None, {}, {}).tune.prune_after == 3
+
+
+def test_a_signal_inside_a_held_section_stops_once_the_section_ends():
+    """tune's records of a trial are written whole: a SIGTERM that arrives inside ``held`` lets the
+    section run to its end and then raises Stopped(SIGTERM); a second signal meanwhile (Ctrl-C)
+    is ignored, not swallowing the first. Outside a held section a signal stops at once. The
+    handlers before are restored after."""
+    from trl_dgpq.study import Stopped, held, stop_on_signals
+    leaked = []
+    guard = signal.signal(signal.SIGTERM, lambda signum, frame: leaked.append(signum))
+    try:
+        mine, interrupt = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
+        ran = []
+        with stop_on_signals() as stop:
+            with pytest.raises(Stopped) as exc:
+                with held(stop):
+                    os.kill(os.getpid(), signal.SIGTERM)
+                    time.sleep(0.05)                # the handler runs here: it must not raise
+                    ran.append("after SIGTERM")
+                    os.kill(os.getpid(), signal.SIGINT)
+                    time.sleep(0.05)
+                    ran.append("after SIGINT")
+            assert exc.value.signum == signal.SIGTERM and ran == ["after SIGTERM", "after SIGINT"]
+            assert stop["held"] is False
+        with stop_on_signals():
+            with pytest.raises(Stopped) as exc:
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(5)                       # interrupted by the handler's Stopped
+                ran.append("never")
+            assert exc.value.signum == signal.SIGINT and ran[-1] == "after SIGINT"
+        assert signal.getsignal(signal.SIGTERM) is mine and signal.getsignal(signal.SIGINT) is interrupt
+        assert leaked == []
+    finally:
+        signal.signal(signal.SIGTERM, guard)

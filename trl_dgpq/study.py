@@ -351,14 +351,16 @@ class Study:
 
     def retry(self, study, trial, reason: str) -> None:
         """Fail ``trial`` (running), marked ``retried``, and enqueue its parameters (those it was
-        given, if it was stopped before drawing them) as ``retry_of`` the trial whose folder it has."""
+        given, if it was stopped before drawing them) as ``retry_of`` the trial whose folder it has
+        (the base preset's trial stays marked ``first``)."""
         from optuna.trial import TrialState
         trial = study._storage.get_trial(trial._trial_id)  # (a live trial, too: its stored record)
         params = {**trial.system_attrs.get("fixed_params", {}), **trial.params}
         owner = trial.number if self.folder(trial.number).exists() else trial.user_attrs.get("retry_of", trial.number)
         study._storage.set_trial_user_attr(trial._trial_id, "retried", reason)
         study._storage.set_trial_state_values(trial._trial_id, TrialState.FAIL)
-        study.enqueue_trial(params, user_attrs={"retry_of": owner})
+        first = {"first": trial.user_attrs["first"]} if "first" in trial.user_attrs else {}  # validate reruns it
+        study.enqueue_trial(params, user_attrs={"retry_of": owner, **first})
 
     def folder(self, number: int) -> Path:
         return self.out / "trials" / f"{number:04d}"

@@ -65,6 +65,8 @@ def main(argv=None) -> int:
         """One line, as every command's errors (argparse's p.error printed the whole usage first)."""
         print(f"{prog('plot')}: error: {message}", file=sys.stderr)
         return 2
+    if args.block is not None and args.block < 1:
+        return refuse(f"--block must be >= 1 (episodes per plotted mean), got {args.block}")
     if not args.runs:
         found = sorted(Path("runs").glob("*/episodes.csv"), key=lambda f: f.stat().st_mtime)
         if not found:
