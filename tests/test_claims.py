@@ -179,7 +179,7 @@ def test_the_squares_claims():
     paper = run([dict(seed=s, episode=e, steps=v) for s, first in ((0, 40), (1, 60))
                  for e, v in enumerate([first, 30, 25, 21, 18], 1)], max_steps=200, reward="paper")
     walk = run(episodes([200] * 5, "steps"), agent="random", max_steps=200, reward="paper")
-    runs = {"square-paper": paper, "square-random-paper": walk}
+    runs = {"square-paper-nocap": paper, "square-random-paper": walk}
     first = judge(got["square/paper/episode-1"], runs, "report")
     assert first.verdict == "agrees" and first.ours.startswith("50 ") and not first.variant
     later = judge(got["square/paper/episodes-3+"], runs, "report")
@@ -187,12 +187,12 @@ def test_the_squares_claims():
     runs["square-random-paper"] = run(episodes([21] * 5, "steps"), agent="random", reward="paper")
     assert judge(got["square/paper/episodes-3+"], runs, "report").verdict == "no learning"
     capped = run(episodes([200, 30, 20], "steps", terminated=False), max_steps=200, reward="paper")
-    c = judge(got["square/paper/episode-1"], {"square-paper": capped}, "report")
+    c = judge(got["square/paper/episode-1"], {"square-paper-nocap": capped}, "report")
     assert c.verdict == "capped" and "2 of 2 seeds capped at 200 steps" in c.ours
     reached = run(episodes([200, 30, 20], "steps", terminated=True), max_steps=200, reward="paper")
-    assert judge(got["square/paper/episode-1"], {"square-paper": reached}, "report").verdict == "agrees"  # no cut
+    assert judge(got["square/paper/episode-1"], {"square-paper-nocap": reached}, "report").verdict == "agrees"  # no cut
     report = run(episodes([200, 200], "steps"), max_steps=200, reward="shaped")
-    r = judge(got["square/report/episode-1"], {"square-report": report}, "report")
+    r = judge(got["square/report/episode-1"], {"square-report-nocap": report}, "report")
     assert r.verdict == "capped" and not r.variant                    # the seed report ran on shaped too
     assert got["square/report/episode-1"].rule.band() == pytest.approx((1000, 5000))
 
