@@ -120,9 +120,10 @@ def reproduce_section(runs: dict, out: Path, label: str, title: str, judged: lis
     for name, run in runs.items():
         df = run.df
         E = int(df.episode.max())
-        cells = [seeds_interval(df[df.episode == 1].set_index("seed")["steps"]).text("{:.1f}"),
-                 seeds_interval(df[df.episode >= 3].groupby("seed")["steps"].median()).text("{:.1f}"),
-                 seeds_interval(df[df.episode > E - 5].groupby("seed")["steps"].mean()).text("{:.1f}")]
+        cell = lambda per_seed: seeds_interval(per_seed).text("{:.1f}") if len(per_seed) else "–"  # noqa: E731
+        cells = [cell(df[df.episode == 1].set_index("seed")["steps"]),
+                 cell(df[df.episode >= 3].groupby("seed")["steps"].median()),   # (a run of one episode has none)
+                 cell(df[df.episode > E - 5].groupby("seed")["steps"].mean())]
         rows.append(f"| {name.removeprefix('square-')} | {df.seed.nunique()} x {E} | " + " | ".join(cells)
                     + f" | {(df.steps >= run.config['env']['max_steps']).mean():.0%} | {kernel_fits_per_seed(df):g} "
                     f"| {ms_per_seed_step(df):.2f} |")
