@@ -1,4 +1,4 @@
-"""scripts/tune.py (trl_dgpq/study.py): Optuna studies of an agent's settings, every trial a run
+"""scripts/tune.py (trl_dgpq/study/): Optuna studies of an agent's settings, every trial a run
 with the same budget; its objective, search spaces, seeds, pruning, resume and tuned presets."""
 import json
 import os
@@ -750,8 +750,8 @@ def test_validate_reruns_the_base_presets_trial_besides_the_k_best(tmp_path, mon
     study = f16_study(tmp_path, objective)
     ran = []
     monkeypatch.setattr(Study, "run_to_end", staticmethod(lambda path, config: ran.append((int(path.name), config))))
-    monkeypatch.setattr("trl_dgpq.study.load_run", lambda path: path)
-    monkeypatch.setattr("trl_dgpq.study.stage", lambda run, lengths: run)
+    monkeypatch.setattr("trl_dgpq.study.validation.load_run", lambda path: path)
+    monkeypatch.setattr("trl_dgpq.study.validation.stage", lambda run, lengths: run)
     monkeypatch.setattr(Objective, "value", lambda self, run: on_validation[int(run.name)])
     lines = []
     assert study.validate(k, [1005, 1006], log=lines.append) == on_validation
