@@ -236,3 +236,27 @@ def test_make_clean_keeps_the_runs():
     make = (Path(__file__).resolve().parent.parent / "Makefile").read_text()
     clean = make.split("\nclean:", 1)[1].split("\n\n")[0]
     assert "rm -rf" in clean and "runs" not in clean                # hours of runs are not build output
+
+
+def test_plot_says_what_to_plot_in_a_sweeps_folder_and_when_runs_of_several_domains_share_a_figure(
+        tmp_path, capsys):
+    """A sweep's folder holds experiments, not episodes: plot names them (quoted) instead of advising
+    train --out; runs of two domains are drawn on the generic figures, with a note saying so."""
+    from tests.test_report import fake_run
+    from trl_dgpq.commands import plot
+    sweep = tmp_path / "my sweep"
+    sweep.mkdir()
+    (sweep / "sweep.json").write_text("{}")
+    assert plot.main([str(sweep)]) == 2
+    assert "is a sweep's folder and none of its experiments has finished yet" in capsys.readouterr().err
+    fake_run(sweep / "a", "square", {0: [5, 6]})
+    assert plot.main([str(sweep)]) == 2
+    err = capsys.readouterr().err
+    assert "plot its experiments, e.g. " in err and f"'{sweep / 'a'}'" in err and "train" not in err
+    square = fake_run(tmp_path / "sq", "square", {0: [5, 6]})
+    gym = fake_run(tmp_path / "gym", "gym:CartPole-v1", {0: [10, 20]})
+    assert plot.main([str(square), str(gym), "--out", str(tmp_path / "fig")]) == 0
+    assert ("note: runs of 2 domains (gym, square) share only the generic figures"
+            in capsys.readouterr().err)
+    assert plot.main([str(square), "--out", str(tmp_path / "fig2")]) == 0
+    assert "note:" not in capsys.readouterr().err

@@ -74,6 +74,12 @@ def main(argv=None) -> int:
         args.runs = [str(found[-1].parent)]
     for r in args.runs:
         if not (Path(r) / "episodes.csv").is_file():
+            if (Path(r) / "sweep.json").is_file():   # a sweep's folder: its experiments are the runs
+                names = sorted(p.parent.name for p in Path(r).glob("*/episodes.csv"))
+                return refuse(f"{r} is a sweep's folder: plot its experiments, e.g. {command('plot')} "
+                              + " ".join(quote(Path(r) / n) for n in names[:3])
+                              + (" ..." if len(names) > 3 else "") if names else
+                              f"{r} is a sweep's folder and none of its experiments has finished yet")
             return refuse(f"{r}/episodes.csv not found (run {command('train')} --out {quote(r)} first)")
     if args.labels and len(args.labels) != len(args.runs):
         return refuse(f"give one label per run ({len(args.runs)} runs, {len(args.labels)} labels)")
@@ -90,6 +96,10 @@ def draw(runs, labels, out: Path, args) -> int:
                          "(give --out a folder you can write)") from None
     domains = {run.domain and run.domain.name for run in runs}  # None: a run without its config.json
     own = getattr(runs[0].domain.analysis(), "figures", None) if len(domains) == 1 and None not in domains else None
+    if len(domains - {None}) > 1:   # one figure of steps and time for all: their measures do not compare
+        print(f"note: runs of {len(domains - {None})} domains ({', '.join(sorted(domains - {None}))}) share only the "
+              "generic figures (steps and time per episode); plot each domain's runs apart for its own figures",
+              file=sys.stderr)
     if own is not None:
         written = own(runs, labels, out, last=args.last, **({} if args.block is None else dict(block=args.block)))
     else:
