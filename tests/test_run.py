@@ -452,3 +452,14 @@ def test_printed_hints_quote_a_path_with_spaces(tmp_path, capsys):
     assert run("--seeds", 1, "--episodes", 1, "--max-steps", 5, "--out", out) == 0
     hint = capsys.readouterr().out.strip().splitlines()[-1].split("plot: ", 1)[1]
     assert shlex.split(hint)[-1] == str(out)
+
+
+def test_an_interrupted_train_counts_its_episodes_over_all_seeds(tmp_path, stop_run_after, capsys):
+    """3 seeds stopped after their 2nd batch of rows: 6 episodes summed over the 3 seeds (2 each), said
+    so, and the hint to continue quotes the folder."""
+    stop_run_after(2, "signal")
+    out = tmp_path / "a run"
+    code = run("--agent", "random", "--seeds", 3, "--episodes", 4, "--max-steps", 10, "--out", out)
+    err = capsys.readouterr().err
+    assert code == 130 and "interrupted by SIGINT after 6 episodes summed over 3 seeds; checkpoint saved." in err
+    assert f"--resume '{out}'" in err

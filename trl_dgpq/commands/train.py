@@ -212,7 +212,8 @@ def _main(argv=None) -> int:
                   f"{runner.disk_note(config)}")
             df = runner.start(config, folder, progress=not args.no_progress)
     except runner.Interrupted as stop:
-        print(f"{stop} after {stop.episodes_done} episodes; checkpoint saved. "
+        seeds = len(config["run"]["seeds"])   # episodes_done counts every seed's: say so
+        print(f"{stop} after {stop.episodes_done:,} episodes summed over {count(seeds, 'seed')}; checkpoint saved. "
               f"Continue with: {command('train')} --resume {quote(stop.folder.path)}", file=sys.stderr)
         return stop.exit_code
     except ValueError as err:  # everything the user asked for is checked before any work
