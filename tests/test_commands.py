@@ -260,3 +260,14 @@ def test_plot_says_what_to_plot_in_a_sweeps_folder_and_when_runs_of_several_doma
             in capsys.readouterr().err)
     assert plot.main([str(square), "--out", str(tmp_path / "fig2")]) == 0
     assert "note:" not in capsys.readouterr().err
+
+
+def test_a_mistyped_flag_is_refused_with_the_nearest_one(capsys):
+    """--episods and --seds are near --episodes and --seeds: named as the likely meaning; a flag near
+    nothing gets no guess."""
+    from trl_dgpq.commands import run
+    assert run("train", ["--episods", "3", "--seds=4"]) == 2
+    assert capsys.readouterr().err == ("train.py: error: unrecognized arguments: --episods --seds=4; did you mean "
+                                       "--episodes --seeds? (see train.py --help)\n")
+    assert run("train", ["--zzzzzzz"]) == 2
+    assert "did you mean" not in capsys.readouterr().err

@@ -74,7 +74,10 @@ def answer(name: str, argv: List[str]) -> Optional[int]:
     known = options(text)
     unknown = [a for a in args if a.startswith("--") and not any(o.startswith(a.split("=")[0]) for o in known)]
     if unknown:  # argparse accepts an unambiguous prefix, so only a flag no option begins with is refused
-        print(f"{prog(name)}: error: unrecognized arguments: {' '.join(unknown)} (see {prog(name)} --help)",
+        import difflib
+        guesses = [g for a in unknown for g in difflib.get_close_matches(a.split("=")[0], known, n=1, cutoff=0.75)]
+        hint = f"; did you mean {' '.join(dict.fromkeys(guesses))}?" if guesses else ""
+        print(f"{prog(name)}: error: unrecognized arguments: {' '.join(unknown)}{hint} (see {prog(name)} --help)",
               file=sys.stderr)
         return 2
     return None
