@@ -125,10 +125,21 @@ def test_help_is_grouped_by_owner_and_presets_can_be_listed(capsys):
     assert "--hidden" in dqn and "--lipschitz" not in dqn      # a flag is listed under its owner
     assert train.main(["--list-presets"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    f16 = next(line.split() for line in lines if line.split()[:2] == ["f16", "dgpq"])
-    assert f16[2:4] == ["default", "(default),"] and {"flight,", "gamma99,"} <= set(f16)  # the domain's own
+    start = lines.index("f16 dgpq")
+    block = lines[start + 1:next(i for i in range(start + 1, len(lines)) if not lines[i].startswith("  "))]
+    names = [line.split()[0] for line in block]
+    assert block[0].split()[:2] == ["default", "(default)"]                                  # the default first
     tuned = presets.tuned_entries("f16").get("dgpq", {})                              # and what studies wrote
-    assert {n.rstrip(",") for n in f16[4:]} == {"flight", "flight-05", "flight-05-cost-shaped", "flight-05-shaped", "gamma99", "gamma99-shaped", "lq10", *tuned}
+    assert set(names) == {"default", "flight", "flight-05", "flight-05-cost-shaped", "flight-05-shaped", "gamma99",
+                          "gamma99-shaped", "lq10", *tuned}
+    about = {line.split()[0]: line.split(None, 1)[1] for line in block}
+    assert about["gamma99-shaped"].startswith("env.potential=lqr, env.potential_gamma=0.99, agent.gamma=0.99")
+    assert about["gamma99-shaped"].endswith("; uses the model") and "uses the model" not in about["gamma99"]
+    assert about["flight-05-tuned"].startswith("study f16-05-weights300: the best of 30 trials on seeds 1000-1004 "
+                                               "validated on 1005-1014, by episode reward")
+    square = lines[lines.index("square random") + 1:lines.index("square random") + 3]
+    assert square == ["  shaped (default)             the defaults; uses the model",   # its default reward does
+                      "  paper                        env.reward=paper"]
 
 
 # ------------------------------------------------------------ --help and typos before the heavy imports

@@ -62,17 +62,44 @@ def section_name(config_class: str) -> str:
 
 
 def list_presets() -> str:
-    """Every (env, agent) with presets: their names, the env's default first."""
+    """Every (env, agent) with presets, the env's default first, each with what it is: the settings it
+    sets (what of the env's model they use marked), or for a study's preset the study it came from."""
     from trl_dgpq.envs import domains
+    from trl_dgpq.presets import preset_overrides, tuned_entries
     lines = []
     for d in domains():
         for env, agent, _ in d.preset_tables():
             table = preset_table(env, agent)  # with a study's "tuned", if one was written
             default = d.default_preset(split_name(env)[1])
-            names = sorted(table, key=lambda n: (n != default, n))
-            lines.append(f"{env:<22} {agent:<12} " + ", ".join(f"{n} (default)" if n == default else n
-                                                                 for n in names))
+            studies = tuned_entries(env).get(agent) or {}
+            lines.append(f"{env} {agent}")
+            for name in sorted(table, key=lambda n: (n != default, n)):
+                lines.append(f"  {name + (' (default)' if name == default else ''):<28} "
+                             + about_preset(env, agent, name, preset_overrides(env, agent, name)[1], studies.get(name)))
     return "\n".join(lines)
+
+
+def about_preset(env: str, agent: str, name: str, sections: dict, study=None, width: int = 110) -> str:
+    """One line: a study's preset by its study, else the settings a preset sets, marked where they use
+    the env's model."""
+    from trl_dgpq.analysis.results import cli_value
+    from trl_dgpq.envs import model_knowledge
+    if study is not None:
+        p = study.get("provenance", {})
+        validated = " validated on " + seeds_text(p["validation"]["seeds"]) if p.get("validation") else ""
+        text = (f"study {p.get('study_name', '?')}: the best of {p.get('trials', '?')} trials on seeds "
+                f"{seeds_text(p.get('seeds') or [])}{validated}, by {p.get('objective', '?')}")
+    else:
+        items = [f"{s}.{k}={cli_value(v)}" for s in ("env", "agent") for k, v in sections[s].items()]
+        text = ", ".join(items) if items else "the defaults"
+    mark = "; uses the model" if model_knowledge(resolve_config(env=env, agent=agent, preset=name, seeds=[0])) else ""
+    room = width - len(mark)                     # (the defaults count too: the square's shaped reward)
+    return (text if len(text) <= room else text[:room - 3] + "...") + mark
+
+
+def seeds_text(seeds) -> str:
+    from trl_dgpq.analysis.results import seeds_text as text
+    return text(seeds) if seeds else "?"
 
 
 def make_parser() -> argparse.ArgumentParser:
