@@ -97,16 +97,19 @@ def evaluate_job(job: Path, episodes: int, progress: bool = False) -> pd.DataFra
                            desc=f"evaluate {describe(config)}").run()
 
 
-def evaluate(folder, episodes: int = 10, progress: bool = False) -> pd.DataFrame:
-    """Evaluate every job of the run in ``folder``; writes and returns ``folder/eval.csv``."""
+def evaluate(folder, episodes: int = 10, progress: bool = False, out=None) -> pd.DataFrame:
+    """Evaluate every job of the run in ``folder``; writes ``eval.csv`` into ``out`` (default: the
+    run's folder; another for a run one may not write into) and returns it."""
     folder = Path(folder)
+    target = Path(out) if out is not None else folder
     if int(episodes) != episodes or episodes < 1:
         raise ValueError(f"episodes must be a positive integer, got {episodes}")
     df = pd.concat([evaluate_job(j, int(episodes), progress) for j in jobs(folder)], ignore_index=True)
     df = df.sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
     buf = io.StringIO()
     df.to_csv(buf, index=False)
-    atomic_write(folder / EVAL, lambda f: f.write(buf.getvalue().encode()))
+    target.mkdir(parents=True, exist_ok=True)
+    atomic_write(target / EVAL, lambda f: f.write(buf.getvalue().encode()))
     return df
 
 

@@ -147,6 +147,13 @@ def test_the_evaluate_command_compares_with_each_seeds_last_n_training_episodes(
     capsys.readouterr()
     assert evaluate_command.main([str(out), "--episodes", "3", "--no-progress"]) == 0
     assert "(mean over each seed's last 3 training episodes: 2);" in capsys.readouterr().out
+    # --out: eval.csv elsewhere (a run one may not write into), the run's folder untouched
+    (out / "eval.csv").unlink()
+    elsewhere = tmp_path / "evaluated here"
+    assert evaluate_command.main([str(out), "--episodes", "3", "--no-progress", "--out", str(elsewhere)]) == 0
+    assert f"wrote {elsewhere / 'eval.csv'}" in capsys.readouterr().out
+    assert (elsewhere / "eval.csv").is_file() and not (out / "eval.csv").exists()
+
 
 def test_the_square_qhat_grid_is_the_lipschitz_envelope_by_hand():
     """Q̂ with two pairs for action 0 (L = 2, V_max = 3, L1): Q̂_0(x) = min(3, 1 + 2|x - s1|_1,

@@ -25,6 +25,9 @@ def main(argv=None) -> int:
     p.add_argument("runs", nargs="+", help="run folders or sweep experiment folders")
     p.add_argument("--episodes", type=int, default=10, help="evaluation episodes per seed [10]")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="write eval.csv here (several runs: DIR/<run>/eval.csv) instead of into each run's folder, "
+                        "e.g. for a run one may not write into")
     args = p.parse_args(argv)
     return guarded("evaluate", lambda: run(args))
 
@@ -37,7 +40,8 @@ def run(args) -> int:
     if args.episodes < 1:
         raise ValueError(f"--episodes must be positive, got {args.episodes}")
     for folder in map(Path, args.runs):
-        df = evaluate(folder, args.episodes, progress=not args.no_progress)
+        out = None if args.out is None else Path(args.out) / (folder.name if len(args.runs) > 1 else "")
+        df = evaluate(folder, args.episodes, progress=not args.no_progress, out=out)
         trained = load_run(folder)
         column, label = trained.domain.measure(trained.env_id)
         fmt = lambda value: trained.domain.format_measure(value, trained.env_id)  # noqa: E731
@@ -45,7 +49,7 @@ def run(args) -> int:
         train = trained.df.groupby("seed").tail(args.episodes)[column].mean()
         print(f"{folder}: {label}, mean over {df.seed.nunique()} seeds x {args.episodes} evaluation episodes: "
               f"{fmt(df[column].mean())} (mean over each seed's last {args.episodes} training episodes: {fmt(train)}); "
-              f"wrote {folder / EVAL}")
+              f"wrote {(out or folder) / EVAL}")
     return 0
 
 
