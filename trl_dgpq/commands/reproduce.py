@@ -191,10 +191,11 @@ def write_report(out: Path, scale: str, wall: float, only=None) -> Path:
              and all(n in done for n, *_ in a.REPRODUCE if n in planned)]
     missing = [n for n in every if n not in shown]
     where = "the published data" if published.is_published(out) else "the runs"
+    words = lambda names: " and ".join(filter(None, [", ".join(names[:-1]), names[-1]])) if names else "none"  # noqa
     (out / "summary.md").write_text(
-        f"The claims of {', '.join(shown) or 'no domain'}, each judged by its rule on {where} of `{command}` "
+        f"The claims of {words(shown)}, each judged by its rule on {where} of `{command}` "
         f"([the report](results/report/REPORT.md)): {tally(judged)}."
-        + (f" Not in this report yet: {', '.join(missing)}." if missing else "") + "\n\n" + "\n".join(summaries))
+        + (f" Not in this report yet: {words(missing)}." if missing else "") + "\n\n" + "\n".join(summaries))
     path = out / "REPORT.md"
     path.write_text(head + summary + "\n".join(sections) + "\n" + cost_section(loaded))
     from trl_dgpq.analysis import results
