@@ -165,14 +165,20 @@ def test_trace_figure_draws_each_flights_altitude_and_elevator(tmp_path, monkeyp
     fig = saved_figures["f16_trace.png"]
     assert squashed(fig.axes[0].get_title()) == "one episode after training, the same noise for all"
     assert fig._suptitle is None
-    # without the checkpoint (a publication rebuilt from its data): drawn again from what was kept
+    # without the checkpoint: in a publication (a folder beside its data/) drawn again from what was
+    # kept; anywhere else the file could be another run's, so nothing is drawn from it
     seen.clear()
-    (tmp_path / "f16_trace.png").unlink()
-    assert analysis.trace_figure(None, tmp_path) == tmp_path / "f16_trace.png" and seen == []
+    assert analysis.trace_figure(None, tmp_path) is None and seen == []
+    pub = tmp_path / "pub" / "f16"
+    pub.mkdir(parents=True)
+    (tmp_path / "pub" / "data").mkdir()
+    (tmp_path / "pub" / "data" / "manifest.json").write_text("{}")
+    (tmp_path / "f16_trace.json.xz").rename(pub / "f16_trace.json.xz")
+    assert analysis.trace_figure(None, pub) == pub / "f16_trace.png" and seen == []
     again = saved_figures["f16_trace.png"].axes[0].get_lines()
     for line, f in zip(again, FLIGHTS.values()):
         np.testing.assert_array_equal(line.get_ydata(), f["h"])
-    assert analysis.trace_figure(None, tmp_path / "elsewhere") is None      # nothing kept there: no figure
+    assert analysis.trace_figure(None, tmp_path / "pub" / "elsewhere") is None      # nothing kept there
 
 
 # ------------------------------------------------------------ the reward figure

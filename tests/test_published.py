@@ -149,11 +149,18 @@ def test_a_checkpoints_figure_is_drawn_again_from_what_it_kept(tmp_path, monkeyp
     drawn = dict(q=q, names=["N", "S", "E", "W"], pairs=[[[0.1, 0.2]], [], [[0.5, 0.5], [0.6, 0.6]], []],
                  path=[[0.0, 0.0], [0.1, 0.0], [0.1, 0.1]], goal=[1.0, 1.0], radius=0.15, seed=3, run="square-shaped")
     monkeypatch.setattr(sq, "qhat_drawn", lambda folder: drawn)
-    first = sq.qhat_figure(tmp_path / "run", tmp_path, "t").read_bytes()
+    pub = tmp_path / "pub"
+    (pub / "data").mkdir(parents=True)
+    (pub / "data" / "manifest.json").write_text("{}")
+    (pub / "square").mkdir()
+    first = sq.qhat_figure(tmp_path / "run", pub / "square", "t").read_bytes()
     monkeypatch.setattr(sq, "qhat_drawn", lambda folder: pytest.fail("the checkpoint was read"))
-    (tmp_path / "qhat.png").unlink()
-    assert sq.qhat_figure(None, tmp_path, "t").read_bytes() == first
-    assert sq.qhat_figure(None, tmp_path / "none", "t") is None
+    (pub / "square" / "qhat.png").unlink()
+    assert sq.qhat_figure(None, pub / "square", "t").read_bytes() == first
+    assert sq.qhat_figure(None, pub / "none", "t") is None
+    (tmp_path / "plotted").mkdir()                    # kept data outside a publication: never drawn from
+    (pub / "square" / "qhat.json.xz").rename(tmp_path / "plotted" / "qhat.json.xz")
+    assert sq.qhat_figure(None, tmp_path / "plotted", "t") is None
 
 
 def test_the_published_rows_configs_and_manifest_by_hand(tmp_path, monkeypatch):

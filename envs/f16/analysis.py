@@ -86,7 +86,7 @@ def trace_figure(folder, out: Path, title: str = "", label: str = ""):
         drawn = {name: {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in f.items()}
                  for name, f in flights(folder).items()}
         save_drawn(data, dict(label=label, flights=drawn))
-    got = load_drawn(data)
+    got = load_drawn(data, fresh=folder is not None)
     if got is None:
         return None
     label = got["label"]

@@ -210,7 +210,7 @@ def holdings_figure(runs, labels, out: Path, episodes: int = 10, title: str = ""
                 if run.agent not in ("ac-optimal", "twap") and job_folders(run.path)]
     if learners:
         save_drawn(data, {label: holdings(run.path, episodes).tolist() for run, label in learners})
-    got = load_drawn(data)
+    got = load_drawn(data, fresh=bool(learners))
     if not got:
         return None
     model = ACModel.from_config(from_dict(LiquidationConfig, runs[0].config["env"]))

@@ -193,7 +193,7 @@ def qhat_figure(folder: Optional[Path], out: Path, title: str = "") -> Optional[
         if drawn is None:
             return None
         save_drawn(data, drawn)
-    got = load_drawn(data)
+    got = load_drawn(data, fresh=folder is not None)
     if got is None:
         return None
     q, names, path = np.asarray(got["q"]), got["names"], np.asarray(got["path"])

@@ -49,11 +49,15 @@ def save_drawn(path: Path, data: dict) -> Path:
     return path
 
 
-def load_drawn(path: Path):
-    """``save_drawn``'s data, or None where there is none."""
+def load_drawn(path: Path, fresh: bool = False):
+    """``save_drawn``'s data, or None where there is none. Unless just written (``fresh``), only a
+    publication's (its figure folders sit beside its data/): anywhere else a file left by an earlier
+    drawing could be another run's."""
     import json
     import lzma
-    if not Path(path).is_file():
+
+    from .published import is_published
+    if not Path(path).is_file() or not (fresh or is_published(Path(path).parent.parent)):
         return None
     with lzma.open(path, "rt") as f:
         return json.load(f)
