@@ -316,6 +316,26 @@ def test_reproduce_only_plans_the_named_domains():
         reproduce.main(["--only", "nowhere"])
 
 
+def test_reproduce_runs_the_chosen_experiments_now_and_the_rest_later(tmp_path, capsys):
+    planned = reproduce.experiments("smoke", ["f16"])
+    assert reproduce.chosen(planned, None) == list(planned)
+    assert reproduce.chosen(planned, ["f16-dgpq-*", "f16-pd"]) == ["f16-dgpq-lq5", "f16-dgpq-lq10", "f16-dgpq-gamma99",
+                                                                 "f16-pd"]       # plan order, each once
+    with pytest.raises(sweep.SweepError):          # names are matched as written
+        reproduce.chosen(planned, ["F16-PD"])
+    with pytest.raises(sweep.SweepError, match="f16-nobody.*planned: f16-dgpq-lq5"):
+        reproduce.chosen(planned, ["f16-pd", "f16-nobody*"])
+    out = tmp_path / "r"
+    assert reproduce.main(["--scale", "smoke", "--only", "f16", "--out", str(out), "--workers", "1",
+                           "--experiments", "f16-pd", "f16-nothing"]) == 0
+    assert "2 of them now" in capsys.readouterr().out
+    assert sorted(n for n in planned if reproduce.finished(out, n)) == ["f16-nothing", "f16-pd"]
+    assert set(sweep.load(out)[0]) == set(planned)       # the plan stays whole
+    assert reproduce.main(["--scale", "smoke", "--only", "f16", "--out", str(out), "--workers", "1",
+                           "--experiments", "nowhere"]) == 2      # refused in one line, nothing run
+    assert "no planned experiment matches" in capsys.readouterr().err
+
+
 def test_each_finished_job_reports_how_many_are_done_failed_and_to_go(tmp_path):
     experiments = {"a": resolve_config(env="corridor", agent="constant", seeds=[0, 1], episodes=1),
                    "b": resolve_config(env="corridor", agent="constant", seeds=[2], episodes=1)}

@@ -7,6 +7,8 @@
                                                    # in parts, each call continues where the last stopped)
     python scripts/reproduce.py --out runs/repro   # run it again: continues what did not finish
     python scripts/reproduce.py --only f16         # one domain's experiments and section
+    python scripts/reproduce.py --scale report --only liquidation --experiments 'liq-dgpq-*'   # some of them
+                                                   # now, the rest in a later call
     python scripts/reproduce.py --scale report --publish results/report   # what the repository keeps: the
                                                    # per-episode data, and every file rebuilt from them
     python scripts/reproduce.py --scale report --report   # run nothing: the report of what has finished so far
@@ -24,6 +26,7 @@ runs fewer seeds and episodes and says so in every title and table.
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import os
 import sys
 import time
@@ -297,6 +300,18 @@ def publish(out: Path, to: Path, scale: str, only=None) -> list:
     return sorted(p for p in to.rglob("*") if p.is_file())
 
 
+def chosen(planned: dict, patterns) -> list:
+    """The planned experiments that ``patterns`` (names or shell patterns; None: all) match, in plan
+    order; a pattern that matches none is refused, with the names it could have meant."""
+    if patterns is None:
+        return list(planned)
+    unmatched = [p for p in patterns if not any(fnmatch.fnmatchcase(n, p) for n in planned)]
+    if unmatched:
+        raise sweep.SweepError(f"--experiments {' '.join(unmatched)}: no planned experiment matches; planned: "
+                               + ", ".join(planned))
+    return [n for n in planned if any(fnmatch.fnmatchcase(n, p) for p in patterns)]
+
+
 def rebuild(folder: Path) -> Path:
     """REPORT.md and the rest, again, from the published data in ``folder`` alone."""
     from trl_dgpq.analysis import published
@@ -316,6 +331,9 @@ def main(argv=None) -> int:
     p.add_argument("--reuse", nargs="+", default=[], metavar="DIR",
                    help="other sweep folders (e.g. runs/compare): an experiment not begun here that finished "
                         "there with the same settings is copied in, not run again")
+    p.add_argument("--experiments", nargs="+", default=None, metavar="PATTERN",
+                   help="run only the planned experiments these names or shell patterns match (e.g. 'liq-dgpq-*'); "
+                        "the plan stays whole, and a later call without it runs the rest")
     p.add_argument("--report", action="store_true",
                    help="run nothing: write REPORT.md, claims.md and results.csv from what has finished so far "
                         "(a domain's section once all its experiments have)")
@@ -329,6 +347,7 @@ def main(argv=None) -> int:
     planned = experiments(args.scale, args.only)
 
     def body() -> int:
+        now = chosen(planned, args.experiments)
         if args.report:
             if not (out / sweep.SWEEP).is_file():
                 raise sweep.SweepError(f"{out} holds no reproduction to report on")
@@ -348,8 +367,10 @@ def main(argv=None) -> int:
         if args.reuse:
             jobs = sweep.reuse(out, jobs, args.reuse, same=lambda a, b: same_config(a) == same_config(b),
                                log=lambda line: print(line, flush=True))
-        jobs = in_order(jobs, args.workers)
-        print(f"reproduce ({args.scale}) -> {out}: {len(planned)} experiments, {args.workers} workers", flush=True)
+        jobs = in_order([j for j in jobs if j.experiment in now], args.workers)
+        print(f"reproduce ({args.scale}) -> {out}: {len(planned)} experiments"
+              + (f", {len(now)} of them now" if len(now) < len(planned) else "") + f", {args.workers} workers",
+              flush=True)
         t0 = time.perf_counter()
         report = sweep.execute(out, jobs, "local", args.workers, log=lambda line: print(line, flush=True))
         if sweep.exit_code(report, "the same command"):
