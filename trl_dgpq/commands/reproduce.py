@@ -31,6 +31,7 @@ import os
 import sys
 import time
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 
 from trl_dgpq.analysis import count, load_run, ms_per_seed_step
@@ -43,11 +44,26 @@ from trl_dgpq.selection import FIRST_REPORTING
 SCALES = ("smoke", "quick", "full", "report")  # smoke: for tests; report: the seed report's own lengths
 
 
+@dataclass(frozen=True)
+class Part:
+    """One section of the reproduction and its ``--only`` name: a domain's analysis, or an experiment
+    of that domain reproduced apart (its analysis' ``APART``: {name: module of its folder})."""
+    name: str
+    domain: object
+
+    def examples(self) -> tuple:
+        return self.domain.examples()
+
+
 def reproductions(only=None) -> list:
-    """[(domain, analysis module)] of every domain with a reproduction (or of those named in
-    ``only``), in registry order."""
-    found = [(d, d.analysis()) for d in domains() if not only or d.name in only]
-    return [(d, a) for d, a in found if hasattr(a, "REPRODUCE")]
+    """[(part, module)]: every domain with a reproduction, each followed by its experiments apart (or
+    the parts named in ``only``), in registry order."""
+    found = []
+    for d in domains():
+        analysis = d.analysis()
+        found.append((Part(d.name, d), analysis))
+        found += [(Part(name, d), d.module(module)) for name, module in getattr(analysis, "APART", {}).items()]
+    return [(part, a) for part, a in found if hasattr(a, "REPRODUCE") and (not only or part.name in only)]
 
 
 def same_run(config: dict) -> dict:
@@ -325,8 +341,8 @@ def main(argv=None) -> int:
     p.add_argument("--scale", choices=SCALES, default="quick")
     p.add_argument("--out", default=None, help="folder (default: runs/reproduce-SCALE); an existing one continues")
     p.add_argument("--workers", type=int, default=os.cpu_count())
-    p.add_argument("--only", nargs="+", choices=[d.name for d, _ in reproductions()], default=None, metavar="DOMAIN",
-                   help="these domains' experiments and sections only (default: all): "
+    p.add_argument("--only", nargs="+", choices=[d.name for d, _ in reproductions()], default=None, metavar="PART",
+                   help="these parts' experiments and sections only (a domain, or an experiment apart; default: all): "
                         + ", ".join(d.name for d, _ in reproductions()))
     p.add_argument("--reuse", nargs="+", default=[], metavar="DIR",
                    help="other sweep folders (e.g. runs/compare): an experiment not begun here that finished "

@@ -1,0 +1,266 @@
+"""How much of the model does DGPQ need on the F-16? A potential ablation with model error,
+reproduced apart (``reproduce --only f16-model``; ``APART`` in analysis.py).
+
+Each learner flies under one potential at a time (potential.py): none; ``cost``, the state's own
+cost paid for ever (model-free); ``lqr``, the LQR's value from the true linearisation; and the
+LQR's value from a **wrong model**, every entry of the linearisation's A and B scaled by its own
+factor in [1 - e, 1 + e] (``dynamics.perturbed``: a fixed draw, recorded as
+``potential_model_draw``), at e = 0.2 and 0.5, three draws each. The reward recorded, and every
+number here, is GWH14's unshaped reward, so learners and potentials compare on the same reward.
+
+Two formulations: ``flight-05`` (a decision every 0.5 s, 20 per episode, gamma 0.9) under every
+potential; GWH14's own (0.05 s, 200 per episode) at gamma 0.99, the potential's too (the
+``gamma99-shaped`` settings: at gamma 0.9 flying is worth less than holding from the start state,
+presets.py), under none, cost, lqr and one draw per error level -- its DGPQ runs cost 1-4 hours
+of one core each, ten times flight-05's, so its wrong models are one draw each.
+
+Learners: DGPQ at L_Q 5 and 10 and DQN, each with its formulation's settings under every
+potential (flight-05's and gamma99's presets, hand-set on seeds 2000-2003 before these runs; no
+setting was chosen on the reporting seeds 10-29). A study per learner and potential family
+(none, cost, lqr) is not part of this plan: the lqr potentials share one family since a wrong
+model changes the potential's values, not its scale or shape, so settings carry over between
+them if they carry at all. TD3 is not run: GWH14's elevator is three-valued (-1, 0, +1), and a
+continuous one is another control problem.
+
+The claims are fixed here, before any run: for each formulation and potential (the draws of an
+error level pooled), P(DGPQ at L_Q 5 improves on DQN) at episodes 91-100 above 0.5, and DGPQ at
+L_Q 5 past halfway from doing nothing to PD there. Where DGPQ's advantage (or DQN's) disappears
+along the model error is read off the same intervals, by ``advantage_lost`` (not a claim).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from trl_dgpq.analysis import ms_per_seed_step, rolling, seed_means
+
+TITLE = "How much of the model does DGPQ need? The F-16 under potentials from none to a wrong model"
+SUMMARY = ("DGPQ at L_Q 5 and 10 and DQN on the F-16 (`flight-05` and GWH14's formulation at γ 0.99), each "
+           "shaped by no potential, a model-free one (`cost`), the LQR's value from the true linearisation, or "
+           "from one whose every entry is off by up to 20 % or 50 % (fixed draws); 20 seeds x 1,000 episodes, "
+           "judged on GWH14's unshaped reward. The LQR potentials use the model: counted apart.")
+
+WINDOWS = ((1, 10), (91, 100), (191, 200), (901, 1000))     # the issue's episodes (1-10: where each starts)
+JUDGED = (91, 100)                                          # the claims' window
+ERRORS = (0.2, 0.5)
+DRAWS = {"05": (1, 2, 3), "gwh14": (1,)}
+
+
+def potentials(formulation: str) -> list:
+    """[(name, group, env overrides)]: a group pools an error level's draws."""
+    out = [("none", "none", dict(potential="none")), ("cost", "cost", dict(potential="cost")),
+           ("lqr", "lqr", dict(potential="lqr"))]
+    for e in ERRORS:
+        out += [(f"lqr-e{round(e * 100)}-d{d}", f"lqr-e{round(e * 100)}",
+                 dict(potential="lqr", potential_model_error=e, potential_model_draw=d)) for d in DRAWS[formulation]]
+    return out
+
+
+GROUPS = {"none": "no potential", "cost": "`cost` (model-free)", "lqr": "LQR, true model",
+          **{f"lqr-e{round(e * 100)}": f"LQR, model off by up to {round(e * 100)} %" for e in ERRORS}}
+FORMULATIONS = {  # name: (heading, the learners' preset, the scripted agents' preset)
+    "05": ("`flight-05` (a decision every 0.5 s, γ 0.9)", "flight-05-shaped", "flight-05"),
+    "gwh14": ("GWH14's formulation (a decision every 0.05 s) at γ 0.99", "gamma99-shaped", "default"),
+}
+LEARNERS = {"dgpq-lq5": dict(agent="dgpq"), "dgpq-lq10": dict(agent="dgpq", lipschitz=10.0), "dqn": dict(agent="dqn")}
+SCALES = {"smoke": (1, 2), "quick": (2, 20), "full": (20, 1000), "report": (20, 1000)}
+GWH14_SCALES = {"smoke": (1, 2), "quick": (1, 3), "full": (20, 1000), "report": (20, 1000)}
+SCRIPTED = {"nothing": dict(agent="constant"), "pd": dict(agent="pd")}
+
+
+def name(formulation: str, who: str, potential: str = "") -> str:
+    return f"f16-model-{formulation}-" + (f"{potential}-" if potential else "") + who
+
+
+def plan() -> list:
+    out = []
+    for f, (_, preset, scripted_preset) in FORMULATIONS.items():
+        scales = SCALES if f == "05" else GWH14_SCALES
+        for p, _, env in potentials(f):
+            out += [(name(f, who, p), dict(settings, preset=preset, **env), scales) for who, settings in LEARNERS.items()]
+        out += [(name(f, who), dict(settings, preset=scripted_preset), {k: (s, min(e, 100)) for k, (s, e) in scales.items()})
+                for who, settings in SCRIPTED.items()]
+    return out
+
+
+REPRODUCE = plan()
+
+
+# ------------------------------------------------------------ measures
+def members(formulation: str, group: str, who: str) -> list:
+    """The experiments of ``who`` under the potentials of ``group`` (an error level's draws)."""
+    return [name(formulation, who, p) for p, g, _ in potentials(formulation) if g == group]
+
+
+def per_seed(runs: dict, names: list, window=JUDGED) -> np.ndarray:
+    """Each seed's mean reward over ``window``, the runs of ``names`` (a group's draws) pooled."""
+    values = []
+    for n in names:
+        df = runs[n].df
+        if df.episode.max() < window[1]:
+            raise ValueError(f"{n} ran {df.episode.max()} episodes, not to episode {window[1]}")
+        values.append(seed_means(df, "return", *window).to_numpy())
+    return np.concatenate(values)
+
+
+def reference(runs: dict, formulation: str, who: str) -> float:
+    """A scripted agent's mean reward over every seed-episode it ran (it does not learn)."""
+    return float(runs[name(formulation, who)].df["return"].mean())
+
+
+def improvement(formulation: str, group: str, x: str = "dgpq-lq5", y: str = "dqn"):
+    def measure(runs):
+        from trl_dgpq.analysis.claims import improvement_interval
+        return improvement_interval(per_seed(runs, members(formulation, group, x)),
+                                    per_seed(runs, members(formulation, group, y)), lower_is_better=False)
+    return measure
+
+
+def progress(formulation: str, group: str, who: str = "dgpq-lq5"):
+    """Per seed at episodes 91-100: how far from doing nothing (0) to PD (1) it got."""
+    def measure(runs):
+        from trl_dgpq.analysis.claims import seeds_interval
+        hold, pd_ = reference(runs, formulation, "nothing"), reference(runs, formulation, "pd")
+        return seeds_interval((per_seed(runs, members(formulation, group, who)) - hold) / (pd_ - hold))
+    return measure
+
+
+def declared_claims() -> list:
+    from trl_dgpq.analysis.claims import Bound, Claim
+    out = []
+    for f, (heading, *_) in FORMULATIONS.items():
+        refs = (name(f, "nothing"), name(f, "pd"))
+        for group, words in GROUPS.items():
+            key = f"f16-model/{f}/{group}"
+            dgpq, dqn = members(f, group, "dgpq-lq5"), members(f, group, "dqn")
+            out += [Claim(f"{key}/dgpq-vs-dqn", "this suite", f"{heading}, potential: {words}: DGPQ at L_Q 5 "
+                          f"improves on DQN at episodes {JUDGED[0]}-{JUDGED[1]} (P(improvement) of each seed's mean "
+                          "there" + (", the draws pooled" if len(dgpq) > 1 else "") + ")",
+                          Bound(0.5, higher_is_better=True), improvement(f, group), tuple(dgpq + dqn), fmt="{:.2f}"),
+                    Claim(f"{key}/halfway", "this suite", f"{heading}, potential: {words}: DGPQ at L_Q 5 is past "
+                          f"halfway from doing nothing (0) to PD (1) by episodes {JUDGED[0]}-{JUDGED[1]}",
+                          Bound(0.5, higher_is_better=True), progress(f, group), tuple(dgpq) + refs, fmt="{:.2f}")]
+    return out
+
+
+CLAIMS = declared_claims()
+
+
+def advantage_lost(runs: dict, formulation: str, window=JUDGED, x: str = "dgpq-lq5", y: str = "dqn") -> str:
+    """Along the LQR potential's model error (0, then ``ERRORS``): where the learner ahead with the
+    true model (its P(improvement) interval wholly on its side of 0.5) stops being ahead."""
+    from trl_dgpq.analysis.claims import improvement_interval
+    levels = [("lqr", 0.0)] + [(f"lqr-e{round(e * 100)}", e) for e in ERRORS]
+    got = [(e, improvement_interval(per_seed(runs, members(formulation, g, x), window),
+                                    per_seed(runs, members(formulation, g, y), window), lower_is_better=False))
+           for g, e in levels]
+    trail = "; ".join(f"±{e:.0%} {i.text('{:.2f}')}" for e, i in got)
+    first = got[0][1]
+    if first.low <= 0.5 <= first.high:
+        return f"With the true model neither {x} nor {y} is ahead, so there is no advantage to lose (P({x} improves " \
+               f"on {y}) [95 % CI] at model error {trail})."
+    ahead = x if first.low > 0.5 else y
+    lost = next((e for e, i in got if not (i.low > 0.5 if ahead == x else i.high < 0.5)), None)
+    return (f"{ahead} is ahead with the true model; " + (f"its advantage is gone at a model error of ±{lost:.0%}"
+            if lost is not None else f"it stays ahead up to ±{ERRORS[-1]:.0%}, the largest error run")
+            + f" (P({x} improves on {y}) [95 % CI] at model error {trail}).")
+
+
+def window_of(runs: dict, formulation: str) -> tuple:
+    """The claims' episodes where every learner of ``formulation`` got there, else the last 10 all ran
+    (a short scale)."""
+    shortest = min(int(runs[name(formulation, who, p)].df.episode.max()) for p, _, _ in potentials(formulation)
+                   for who in LEARNERS)
+    return JUDGED if shortest >= JUDGED[1] else (max(1, shortest - 9), shortest)
+
+
+# ------------------------------------------------------------ the section
+def stable(df: pd.DataFrame, pd_mean: float) -> tuple:
+    """(seeds whose 10-episode mean came within 10 % of PD's at some episode, seeds)."""
+    met = rolling(df, "return", 10, full=True) >= 1.1 * pd_mean       # both negative: 1.1 x is 10 % worse
+    return int(df[met]["seed"].nunique()), int(df["seed"].nunique())
+
+
+def cell(df: pd.DataFrame, window) -> str:
+    from trl_dgpq.analysis.claims import seeds_interval
+    if df.episode.max() < window[1]:
+        return "-"
+    return seeds_interval(seed_means(df, "return", *window)).text("{:.0f}")
+
+
+def table(runs: dict, formulation: str) -> str:
+    pd_mean = reference(runs, formulation, "pd")
+    head = ("| potential | learner | " + " | ".join(f"episodes {a}-{b:,}" for a, b in WINDOWS)
+            + " | seeds ever within 10 % of PD (10-episode mean) | ms per seed-step |\n|---|---|"
+            + "---|" * len(WINDOWS) + "---|---|")
+    rows = []
+    for p, _, _ in potentials(formulation):
+        for who in LEARNERS:
+            df = runs[name(formulation, who, p)].df
+            hits, n = stable(df, pd_mean)
+            rows.append(f"| {p} | {who} | " + " | ".join(cell(df, w) for w in WINDOWS)
+                        + f" | {hits} of {n} | {ms_per_seed_step(df):.2f} |")
+    refs = ", ".join(f"{who} {reference(runs, formulation, who):.1f}" for who in SCRIPTED)
+    return (head + "\n" + "\n".join(rows) + f"\n\nEach cell: IQM over seeds of each seed's mean episode reward in "
+            f"the window [95 % CI] (GWH14's unshaped reward). Scripted references, mean over every seed-episode: "
+            f"{refs}.\n")
+
+
+def improvements(runs: dict, formulation: str, window=JUDGED) -> str:
+    from trl_dgpq.analysis.claims import improvement_interval
+    pairs = (("dgpq-lq5", "dqn"), ("dgpq-lq10", "dqn"), ("dgpq-lq5", "dgpq-lq10"))
+    rows = ["| potential | " + " | ".join(f"P({x} improves on {y})" for x, y in pairs) + " |",
+            "|---|" + "---|" * len(pairs)]
+    for group, words in GROUPS.items():
+        if not members(formulation, group, "dqn"):
+            continue
+        cells = [improvement_interval(per_seed(runs, members(formulation, group, x), window),
+                                      per_seed(runs, members(formulation, group, y), window), lower_is_better=False)
+                 .text("{:.2f}") for x, y in pairs]
+        rows.append(f"| {words} | " + " | ".join(cells) + " |")
+    return (f"At episodes {window[0]}-{window[1]}, each seed's mean, an error level's draws pooled "
+            "(rliable's P(improvement) [95 % CI]):\n\n" + "\n".join(rows) + "\n")
+
+
+def figure(runs: dict, out: Path, title: str) -> Path:
+    """f16_model.png: reward at episodes 91-100 against the potential (none, cost, then the LQR's at
+    growing model error), one line per learner with its IQM's interval, doing nothing and PD as
+    horizontal lines; a panel per formulation."""
+    import matplotlib.pyplot as plt
+
+    from trl_dgpq.analysis.claims import seeds_interval
+    from trl_dgpq.analysis.figures import save
+    fig, axes = plt.subplots(1, len(FORMULATIONS), figsize=(11.0, 4.2), sharey=False)
+    for ax, (f, (heading, *_)) in zip(np.atleast_1d(axes), FORMULATIONS.items()):
+        groups = [g for g in GROUPS if members(f, g, "dqn")]
+        window = window_of(runs, f)
+        x = np.arange(len(groups))
+        for k, who in enumerate(LEARNERS):
+            got = [seeds_interval(per_seed(runs, members(f, g, who), window)) for g in groups]
+            point = np.array([i.point for i in got])
+            err = np.array([[i.point - i.low for i in got], [i.high - i.point for i in got]])
+            ax.errorbar(x + 0.08 * (k - 1), point, yerr=err, marker="o", ms=4, capsize=3, lw=1.2, label=who)
+        for who, style in (("nothing", ":"), ("pd", "--")):
+            value = reference(runs, f, who)
+            ax.axhline(value, color="k", ls=style, lw=0.9, label=f"{who} ({value:.0f})")
+        ax.set_xticks(x, [GROUPS[g].replace("`", "").replace(", model off by up to ", "\n±").replace(" (model-free)", "")
+                          for g in groups], fontsize=7)
+        ax.set_title(heading.replace("`", ""), fontsize=9)
+        ax.set_ylabel(f"episode reward, episodes {window[0]}-{window[1]}\n(IQM over seeds [95 % CI])")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    return save(fig, out / "f16_model.png", title)
+
+
+def reproduce_section(runs: dict, out: Path, label: str, title: str, judged: list) -> str:
+    (out / "f16-model").mkdir(exist_ok=True)
+    figure(runs, out / "f16-model", title)
+    parts = []
+    for f, (heading, *_) in FORMULATIONS.items():
+        window = window_of(runs, f)
+        parts.append(f"### {heading}\n\n" + table(runs, f) + "\n" + improvements(runs, f, window) + "\n"
+                     + advantage_lost(runs, f, window) + "\n")
+    return (f"## {TITLE}\n\n{label}\n\n" + "\n".join(j.bullet() for j in judged) + "\n\n"
+            + "\n".join(parts) + "\n![reward against the potential](f16-model/f16_model.png)\n")
