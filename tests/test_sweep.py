@@ -660,3 +660,110 @@ def test_reproduce_reports_the_domains_whose_experiments_all_finished(tmp_path, 
     reproduce.write_report(out, "full", 0.0)
     assert calls[-1][2] == "full scale" and calls[-1][1].startswith("*Scale: full* -- the seed report's lengths: ")
     assert reproduce.main(["--scale", "smoke", "--out", str(tmp_path / "none"), "--report"]) == 2
+
+
+# ------------------------------------------------------------------ signals outside a run (issue 52)
+class FakeProcess:
+    """A worker process that does nothing; ``on_start``/``on_join`` run inside start() and join()
+    (where a signal may arrive)."""
+    made = []
+
+    def __init__(self, target=None, args=(), name="", on_start=None, on_join=None):
+        self.name, self.on_start, self.on_join = name, on_start, on_join
+        self.sentinel, self.exitcode, self.terminated = object(), None, False
+        FakeProcess.made.append(self)
+
+    def start(self):
+        if self.on_start:
+            self.on_start()
+
+    def join(self):
+        if self.on_join:
+            self.on_join()
+        self.exitcode = -signal.SIGTERM if self.terminated else 0
+
+    def terminate(self):
+        self.terminated = True
+
+
+def fake_context(monkeypatch, **hooks):
+    FakeProcess.made = []
+
+    class Context:
+        def Process(self, **kwargs):
+            return FakeProcess(**kwargs, **hooks)
+
+        def set_forkserver_preload(self, modules):
+            pass
+    monkeypatch.setattr(sweep.mp, "get_context", lambda method: Context())
+    monkeypatch.setattr(sweep, "wait", lambda sentinels: sentinels[:1])
+
+
+def sigterm_self():
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(0.05)       # the handler runs by now
+
+
+def test_a_sigterm_while_a_worker_starts_still_stops_that_worker(tmp_path, monkeypatch):
+    """Inside start(): the worker is recorded before Terminated, so it is passed the SIGTERM and
+    reaped (on_done), not left running."""
+    fake_context(monkeypatch, on_start=once(sigterm_self))
+    jobs = [sweep.Job("e", 0, [0], str(tmp_path / "j0"), {}), sweep.Job("e", 1, [1], str(tmp_path / "j1"), {})]
+    done = []
+    with pytest.raises(sweep.Terminated):
+        with sweep._sigterm_raises():
+            sweep.run_local(jobs, 2, lambda job, out: done.append((job.index, out["status"])))
+    assert len(FakeProcess.made) == 1 and FakeProcess.made[0].terminated        # the second never started
+    assert done == [(0, "killed")]
+
+
+def once(action):
+    """``action`` the first time only (a second SIGTERM would end the test's process: by design)."""
+    calls = []
+    return lambda: None if calls else (calls.append(1), action())
+
+
+def test_a_sigterm_while_a_worker_is_reaped_still_records_it(tmp_path, monkeypatch):
+    fake_context(monkeypatch, on_join=once(sigterm_self))
+    jobs = [sweep.Job("e", 0, [0], str(tmp_path / "j0"), {}), sweep.Job("e", 1, [1], str(tmp_path / "j1"), {})]
+    done = []
+    with pytest.raises(sweep.Terminated):
+        with sweep._sigterm_raises():
+            sweep.run_local(jobs, 2, lambda job, out: done.append(job.index))
+    assert sorted(done) == [0, 1]          # the one reaped when it came, and the other stopped and reaped
+    assert [p.terminated for p in FakeProcess.made] == [False, True]
+
+
+def test_sigterm_outside_a_held_section_stops_at_once_and_a_second_one_kills():
+    """Outside ``_sigterm_held`` a SIGTERM raises at once; the handler then gives SIGTERM back to
+    its default, so a second one ends a stuck sweep without waiting. The handler before is restored
+    after the block, with nothing left pending."""
+    before = signal.getsignal(signal.SIGTERM)
+    ran = []
+    with pytest.raises(sweep.Terminated):
+        with sweep._sigterm_raises():
+            try:
+                sigterm_self()
+                ran.append("never")
+            finally:
+                second = signal.getsignal(signal.SIGTERM)
+    assert ran == [] and second == signal.SIG_DFL
+    assert signal.getsignal(signal.SIGTERM) is before and sweep._SIGTERM == {"held": False, "pending": False}
+    with pytest.raises(sweep.Terminated):          # held: the block runs to its end, then Terminated
+        with sweep._sigterm_raises():
+            with sweep._sigterm_held():
+                sigterm_self()
+                ran.append("held")
+            ran.append("never")
+    assert ran == ["held"] and sweep._SIGTERM == {"held": False, "pending": False}
+
+
+@pytest.mark.parametrize("stop, code, name", [(KeyboardInterrupt(), 130, "SIGINT"), (sweep.Terminated(), 143, "SIGTERM")])
+def test_sweep_and_reproduce_end_a_signal_with_one_line_and_its_code(tmp_path, monkeypatch, capsys, stop, code, name):
+    def interrupted(*args, **kwargs):
+        raise stop
+    monkeypatch.setattr(sweep, "execute", interrupted)
+    assert reproduce.main(["--scale", "smoke", "--only", "f16", "--out", str(tmp_path / "r"), "--workers", "1"]) == code
+    assert capsys.readouterr().err == f"interrupted by {name}: continue with the same command\n"
+    assert sweep.run_script("sweep.py", "--resume X", interrupted) == code
+    assert capsys.readouterr().err == f"interrupted by {name}: continue with --resume X\n"
