@@ -922,3 +922,28 @@ def test_a_signal_inside_a_held_section_stops_once_the_section_ends():
         assert leaked == []
     finally:
         signal.signal(signal.SIGTERM, guard)
+
+
+def test_a_signal_while_a_trial_is_recorded_lets_the_record_finish(tmp_path, monkeypatch):
+    """SIGINT arriving inside study.tell (the held section that records an ended trial): the trial
+    is stored complete with its value and its folder tidied before Stopped(SIGINT) is raised, so no
+    finished trial is lost or run twice."""
+    from trl_dgpq.study import Stopped, stop_on_signals
+    out = tmp_path / "study"
+    study = Study.open(out, None, {"env": "square", "agent": "dqn", "episodes": "2"}, {})
+    tell, logged = optuna.study.Study.tell, []
+
+    def tell_then_signal(self, *args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)                                   # the handler has run: it must not raise here
+        return tell(self, *args, **kwargs)
+    with stop_on_signals() as stop:
+        trial = study.next_trial(3, stop)
+        monkeypatch.setattr(optuna.study.Study, "tell", tell_then_signal)
+        with pytest.raises(Stopped) as exc:
+            study.run(trial, stop, logged.append)
+    assert exc.value.signum == signal.SIGINT
+    (done,) = trials_of(out)
+    assert done.state == optuna.trial.TrialState.COMPLETE and done.value is not None
+    assert logged and logged[-1].startswith("trial 0: ")
+    assert not any((out / "trials" / "0000").glob("**/checkpoint*"))      # tidied: the record was written whole
