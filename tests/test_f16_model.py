@@ -4,21 +4,24 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from envs.f16 import model_ablation as m
+from trl_dgpq.envs.f16 import model_ablation as m
 from trl_dgpq.analysis.claims import MET, NOT_MET, UNDECIDED, judge
 from trl_dgpq.analysis.runs import Run
 from trl_dgpq.commands import reproduce
 
+CLAIMS = m.FLIGHT_05.CLAIMS + m.GWH14.CLAIMS
+
 
 @pytest.fixture(scope="module")
 def planned():
-    return reproduce.experiments("report", ["f16-model"])
+    return reproduce.experiments("report", ["f16-model", "f16-model-gwh14"])
 
 
 def test_every_learner_meets_every_potential_with_its_formulations_settings(planned):
-    assert [p.name for p, _ in reproduce.reproductions(["f16-model"])] == ["f16-model"]
-    assert "f16-model" not in {n for n in reproduce.experiments("report", ["f16"])}   # apart from the domain's
-    assert len(planned) == (9 * 3 + 2) + (5 * 3 + 2)
+    parts = reproduce.reproductions(["f16-model", "f16-model-gwh14"])
+    assert [(p.name, a) for p, a in parts] == [("f16-model", m.FLIGHT_05), ("f16-model-gwh14", m.GWH14)]
+    assert not any(n.startswith("f16-model") for n in reproduce.experiments("report", ["f16"]))  # apart from f16's
+    assert len(reproduce.experiments("report", ["f16-model"])) == 9 * 3 + 2 and len(planned) == 29 + 5 * 3 + 2
     wrong = {(c["env"]["potential_model_error"], c["env"]["potential_model_draw"]) for n, c in planned.items()
              if n.startswith("f16-model-05-") and n.endswith("-dqn")}
     assert wrong == {(0.0, 0)} | {(e, d) for e in (0.2, 0.5) for d in (1, 2, 3)}
@@ -61,7 +64,7 @@ def values(name, seed):
 
 def test_the_claims_measure_what_they_say(planned):
     runs = runs_with(planned, values)
-    got = {c.key: judge(c, runs, "report", planned) for c in m.CLAIMS}
+    got = {c.key: judge(c, runs, "report", planned) for c in CLAIMS}
     assert len(got) == 20
     assert got["f16-model/05/lqr/dgpq-vs-dqn"].verdict == MET          # every DGPQ seed above every DQN seed: P 1
     assert got["f16-model/05/lqr/dgpq-vs-dqn"].ours.startswith("1.00")
@@ -72,7 +75,7 @@ def test_the_claims_measure_what_they_say(planned):
     assert halfway.point == pytest.approx((-100.095 + 140) / 70, abs=0.002) and halfway.low > 0.5
     assert got["f16-model/05/lqr-e50/halfway"].verdict == MET
     slow = runs_with(planned, lambda n, s: -120.0 if n.endswith("dgpq-lq5") else values(n, s))
-    assert judge(next(c for c in m.CLAIMS if c.key == "f16-model/05/cost/halfway"), slow, "report",
+    assert judge(next(c for c in CLAIMS if c.key == "f16-model/05/cost/halfway"), slow, "report",
                  planned).verdict == NOT_MET                           # (-120 + 140) / 70 = 0.29
 
 
@@ -80,7 +83,7 @@ def test_pooled_draws_and_model_knowledge(planned):
     runs = runs_with(planned, values)
     pooled = m.per_seed(runs, m.members("05", "lqr-e20", "dqn"))
     assert len(pooled) == 60 and m.members("gwh14", "lqr-e20", "dqn") == ["f16-model-gwh14-lqr-e20-d1-dqn"]
-    variant = {c.key: judge(c, runs, "report", planned).variant for c in m.CLAIMS}
+    variant = {c.key: judge(c, runs, "report", planned).variant for c in CLAIMS}
     assert not variant["f16-model/05/none/dgpq-vs-dqn"] and not variant["f16-model/gwh14/cost/halfway"]
     assert variant["f16-model/05/lqr-e50/halfway"] and variant["f16-model/gwh14/lqr/dgpq-vs-dqn"]
     with pytest.raises(ValueError, match="not to episode 100"):
@@ -101,12 +104,14 @@ def test_where_the_advantage_is_lost(planned):
 
 def test_the_section_and_its_figure(planned, tmp_path):
     runs = runs_with(planned, values)
-    judged = [judge(c, runs, "report", planned) for c in m.CLAIMS]
-    text = m.reproduce_section(runs, tmp_path, "label", "title", judged)
+    judged = [judge(c, runs, "report", planned) for c in CLAIMS]
+    text = m.FLIGHT_05.reproduce_section(runs, tmp_path, "label", "title", judged[:10])
     assert (tmp_path / "f16-model" / "f16_model.png").stat().st_size > 10_000
+    assert "f16-model/f16_model.png" in text and "GWH14's formulation" not in text.split("\n\n", 1)[1]
     assert "| lqr-e20-d3 | dgpq-lq5 | -70 [-70, -70] |" in text
     assert "nothing -140.0, pd -70.0" in text
-    assert text.count("### ") == 2 and "At episodes 91-100" in text
+    assert text.startswith("## How much of the model does DGPQ need? The F-16, `flight-05`") and "At episodes 91-100" in text
+    assert m.GWH14.reproduce_section(runs, tmp_path, "", "", []).count("| lqr-e50-d1 |") == 3   # one draw, 3 learners
     short = {n: Run(None, r.df[r.df.episode <= 20], r.config) for n, r in runs.items()}
     assert m.window_of(short, "05") == (11, 20)
-    assert "At episodes 11-20" in m.reproduce_section(short, tmp_path, "label", "title", [])
+    assert "At episodes 11-20" in m.FLIGHT_05.reproduce_section(short, tmp_path, "label", "title", [])

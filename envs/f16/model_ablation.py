@@ -1,5 +1,6 @@
 """How much of the model does DGPQ need on the F-16? A potential ablation with model error,
-reproduced apart (``reproduce --only f16-model``; ``APART`` in analysis.py).
+reproduced apart, one part per formulation (``reproduce --only f16-model`` for flight-05,
+``f16-model-gwh14`` for GWH14's; ``APART`` in analysis.py).
 
 Each learner flies under one potential at a time (potential.py): none; ``cost``, the state's own
 cost paid for ever (model-free); ``lqr``, the LQR's value from the true linearisation; and the
@@ -36,11 +37,6 @@ import pandas as pd
 
 from trl_dgpq.analysis import ms_per_seed_step, rolling, seed_means
 
-TITLE = "How much of the model does DGPQ need? The F-16 under potentials from none to a wrong model"
-SUMMARY = ("DGPQ at L_Q 5 and 10 and DQN on the F-16 (`flight-05` and GWH14's formulation at γ 0.99), each "
-           "shaped by no potential, a model-free one (`cost`), the LQR's value from the true linearisation, or "
-           "from one whose every entry is off by up to 20 % or 50 % (fixed draws); 20 seeds x 1,000 episodes, "
-           "judged on GWH14's unshaped reward. The LQR potentials use the model: counted apart.")
 
 WINDOWS = ((1, 10), (91, 100), (191, 200), (901, 1000))     # the issue's episodes (1-10: where each starts)
 JUDGED = (91, 100)                                          # the claims' window
@@ -60,9 +56,10 @@ def potentials(formulation: str) -> list:
 
 GROUPS = {"none": "no potential", "cost": "`cost` (model-free)", "lqr": "LQR, true model",
           **{f"lqr-e{round(e * 100)}": f"LQR, model off by up to {round(e * 100)} %" for e in ERRORS}}
-FORMULATIONS = {  # name: (heading, the learners' preset, the scripted agents' preset)
-    "05": ("`flight-05` (a decision every 0.5 s, γ 0.9)", "flight-05-shaped", "flight-05"),
-    "gwh14": ("GWH14's formulation (a decision every 0.05 s) at γ 0.99", "gamma99-shaped", "default"),
+FORMULATIONS = {  # name: (heading, the learners' preset, the scripted agents' preset, the part's folder)
+    "05": ("`flight-05` (a decision every 0.5 s, γ 0.9)", "flight-05-shaped", "flight-05", "f16-model"),
+    "gwh14": ("GWH14's formulation (a decision every 0.05 s) at γ 0.99", "gamma99-shaped", "default",
+              "f16-model-gwh14"),
 }
 LEARNERS = {"dgpq-lq5": dict(agent="dgpq"), "dgpq-lq10": dict(agent="dgpq", lipschitz=10.0), "dqn": dict(agent="dqn")}
 SCALES = {"smoke": (1, 2), "quick": (2, 20), "full": (20, 1000), "report": (20, 1000)}
@@ -74,18 +71,13 @@ def name(formulation: str, who: str, potential: str = "") -> str:
     return f"f16-model-{formulation}-" + (f"{potential}-" if potential else "") + who
 
 
-def plan() -> list:
+def plan(f: str, scales: dict) -> list:
+    _, preset, scripted_preset, _ = FORMULATIONS[f]
     out = []
-    for f, (_, preset, scripted_preset) in FORMULATIONS.items():
-        scales = SCALES if f == "05" else GWH14_SCALES
-        for p, _, env in potentials(f):
-            out += [(name(f, who, p), dict(settings, preset=preset, **env), scales) for who, settings in LEARNERS.items()]
-        out += [(name(f, who), dict(settings, preset=scripted_preset), {k: (s, min(e, 100)) for k, (s, e) in scales.items()})
-                for who, settings in SCRIPTED.items()]
-    return out
-
-
-REPRODUCE = plan()
+    for p, _, env in potentials(f):
+        out += [(name(f, who, p), dict(settings, preset=preset, **env), scales) for who, settings in LEARNERS.items()]
+    return out + [(name(f, who), dict(settings, preset=scripted_preset),
+                   {k: (s, min(e, 100)) for k, (s, e) in scales.items()}) for who, settings in SCRIPTED.items()]
 
 
 # ------------------------------------------------------------ measures
@@ -127,10 +119,10 @@ def progress(formulation: str, group: str, who: str = "dgpq-lq5"):
     return measure
 
 
-def declared_claims() -> list:
+def declared_claims(f: str) -> list:
     from trl_dgpq.analysis.claims import Bound, Claim
     out = []
-    for f, (heading, *_) in FORMULATIONS.items():
+    for heading in FORMULATIONS[f][:1]:
         refs = (name(f, "nothing"), name(f, "pd"))
         for group, words in GROUPS.items():
             key = f"f16-model/{f}/{group}"
@@ -143,9 +135,6 @@ def declared_claims() -> list:
                           f"halfway from doing nothing (0) to PD (1) by episodes {JUDGED[0]}-{JUDGED[1]}",
                           Bound(0.5, higher_is_better=True), progress(f, group), tuple(dgpq) + refs, fmt="{:.2f}")]
     return out
-
-
-CLAIMS = declared_claims()
 
 
 def advantage_lost(runs: dict, formulation: str, window=JUDGED, x: str = "dgpq-lq5", y: str = "dqn") -> str:
@@ -224,43 +213,61 @@ def improvements(runs: dict, formulation: str, window=JUDGED) -> str:
             "(rliable's P(improvement) [95 % CI]):\n\n" + "\n".join(rows) + "\n")
 
 
-def figure(runs: dict, out: Path, title: str) -> Path:
+def figure(runs: dict, f: str, out: Path, title: str) -> Path:
     """f16_model.png: reward at episodes 91-100 against the potential (none, cost, then the LQR's at
     growing model error), one line per learner with its IQM's interval, doing nothing and PD as
-    horizontal lines; a panel per formulation."""
+    horizontal lines."""
     import matplotlib.pyplot as plt
 
     from trl_dgpq.analysis.claims import seeds_interval
     from trl_dgpq.analysis.figures import save
-    fig, axes = plt.subplots(1, len(FORMULATIONS), figsize=(11.0, 4.2), sharey=False)
-    for ax, (f, (heading, *_)) in zip(np.atleast_1d(axes), FORMULATIONS.items()):
-        groups = [g for g in GROUPS if members(f, g, "dqn")]
-        window = window_of(runs, f)
-        x = np.arange(len(groups))
-        for k, who in enumerate(LEARNERS):
-            got = [seeds_interval(per_seed(runs, members(f, g, who), window)) for g in groups]
-            point = np.array([i.point for i in got])
-            err = np.array([[i.point - i.low for i in got], [i.high - i.point for i in got]])
-            ax.errorbar(x + 0.08 * (k - 1), point, yerr=err, marker="o", ms=4, capsize=3, lw=1.2, label=who)
-        for who, style in (("nothing", ":"), ("pd", "--")):
-            value = reference(runs, f, who)
-            ax.axhline(value, color="k", ls=style, lw=0.9, label=f"{who} ({value:.0f})")
-        ax.set_xticks(x, [GROUPS[g].replace("`", "").replace(", model off by up to ", "\n±").replace(" (model-free)", "")
-                          for g in groups], fontsize=7)
-        ax.set_title(heading.replace("`", ""), fontsize=9)
-        ax.set_ylabel(f"episode reward, episodes {window[0]}-{window[1]}\n(IQM over seeds [95 % CI])")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    groups = [g for g in GROUPS if members(f, g, "dqn")]
+    window = window_of(runs, f)
+    x = np.arange(len(groups))
+    for k, who in enumerate(LEARNERS):
+        got = [seeds_interval(per_seed(runs, members(f, g, who), window)) for g in groups]
+        point = np.array([i.point for i in got])
+        err = np.array([[i.point - i.low for i in got], [i.high - i.point for i in got]])
+        ax.errorbar(x + 0.08 * (k - 1), point, yerr=err, marker="o", ms=4, capsize=3, lw=1.2, label=who)
+    for who, style in (("nothing", ":"), ("pd", "--")):
+        value = reference(runs, f, who)
+        ax.axhline(value, color="k", ls=style, lw=0.9, label=f"{who} ({value:.0f})")
+    ax.set_xticks(x, [GROUPS[g].replace("`", "").replace(", model off by up to ", "\n±").replace(" (model-free)", "")
+                      for g in groups], fontsize=7)
+    ax.set_title(FORMULATIONS[f][0].replace("`", ""), fontsize=9)
+    ax.set_ylabel(f"episode reward, episodes {window[0]}-{window[1]}\n(IQM over seeds [95 % CI])")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
     return save(fig, out / "f16_model.png", title)
 
 
-def reproduce_section(runs: dict, out: Path, label: str, title: str, judged: list) -> str:
-    (out / "f16-model").mkdir(exist_ok=True)
-    figure(runs, out / "f16-model", title)
-    parts = []
-    for f, (heading, *_) in FORMULATIONS.items():
+class Ablation:
+    """One formulation's ablation as a part of the reproduction (``APART`` in analysis.py): what
+    ``reproduce`` reads of a domain's analysis, for it alone."""
+
+    def __init__(self, f: str, scales: dict):
+        self.formulation, self.SCALES = f, scales
+        heading, self.folder = FORMULATIONS[f][0], FORMULATIONS[f][3]
+        self.REPRODUCE = plan(f, scales)
+        self.CLAIMS = declared_claims(f)
+        self.TITLE = (f"How much of the model does DGPQ need? The F-16, {heading}, under potentials from none to "
+                      "a wrong model")
+        self.SUMMARY = ("DGPQ at L_Q 5 and 10 and DQN, each shaped by no potential, a model-free one (`cost`), the "
+                        "LQR's value from the true linearisation, or from one whose every entry is off by up to 20 % "
+                        f"or 50 % ({'three fixed draws' if len(DRAWS[f]) > 1 else 'one fixed draw'} each); 20 seeds x "
+                        "1,000 episodes, judged on GWH14's unshaped reward. The LQR potentials use the model: counted "
+                        "apart.")
+
+    def reproduce_section(self, runs: dict, out: Path, label: str, title: str, judged: list) -> str:
+        f = self.formulation
+        (out / self.folder).mkdir(exist_ok=True)
+        figure(runs, f, out / self.folder, title)
         window = window_of(runs, f)
-        parts.append(f"### {heading}\n\n" + table(runs, f) + "\n" + improvements(runs, f, window) + "\n"
-                     + advantage_lost(runs, f, window) + "\n")
-    return (f"## {TITLE}\n\n{label}\n\n" + "\n".join(j.bullet() for j in judged) + "\n\n"
-            + "\n".join(parts) + "\n![reward against the potential](f16-model/f16_model.png)\n")
+        return (f"## {self.TITLE}\n\n{label}\n\n" + "\n".join(j.bullet() for j in judged) + "\n\n"
+                + table(runs, f) + "\n" + improvements(runs, f, window) + "\n" + advantage_lost(runs, f, window)
+                + f"\n\n![reward against the potential]({self.folder}/f16_model.png)\n")
+
+
+FLIGHT_05 = Ablation("05", SCALES)
+GWH14 = Ablation("gwh14", GWH14_SCALES)

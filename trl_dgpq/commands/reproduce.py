@@ -47,7 +47,8 @@ SCALES = ("smoke", "quick", "full", "report")  # smoke: for tests; report: the s
 @dataclass(frozen=True)
 class Part:
     """One section of the reproduction and its ``--only`` name: a domain's analysis, or an experiment
-    of that domain reproduced apart (its analysis' ``APART``: {name: module of its folder})."""
+    of that domain reproduced apart (its analysis' ``APART``: {name: "module" or "module:object" of its
+    folder})."""
     name: str
     domain: object
 
@@ -62,7 +63,9 @@ def reproductions(only=None) -> list:
     for d in domains():
         analysis = d.analysis()
         found.append((Part(d.name, d), analysis))
-        found += [(Part(name, d), d.module(module)) for name, module in getattr(analysis, "APART", {}).items()]
+        for name, where in getattr(analysis, "APART", {}).items():
+            module, _, attr = where.partition(":")
+            found.append((Part(name, d), getattr(d.module(module), attr) if attr else d.module(module)))
     return [(part, a) for part, a in found if hasattr(a, "REPRODUCE") and (not only or part.name in only)]
 
 
