@@ -65,6 +65,10 @@ class RunError(ValueError):
     """A user-caused problem with the run folder (one line, exit 2)."""
 
 
+class RowsMissing(RunError):
+    """episodes.csv lacks rows (or repeats some) that a checkpoint covers: a file cut or edited."""
+
+
 class Interrupted(Exception):
     def __init__(self, signum: int, folder: "RunFolder", episodes_done: int):
         self.signum, self.folder, self.episodes_done = signum, folder, episodes_done
@@ -298,14 +302,14 @@ class RunFolder:
             path.unlink(missing_ok=True)
             return
         if not path.exists():
-            raise RunError(f"{path} is missing: its checkpoint covers {covered} episodes")
+            raise RowsMissing(f"{path} is missing: its checkpoint covers {covered} episodes")
         self._drop_unfinished_row()
         df = self.episodes()
         kept = df[df.episode <= df.seed.map(episodes)]
         found = len(kept.drop_duplicates(["seed", "episode"]))
         if len(kept) != covered or found != covered:
-            raise RunError(f"{path} does not hold the {covered} episodes its checkpoint covers once each "
-                           f"({covered - found} missing, {len(kept) - found} repeated)")
+            raise RowsMissing(f"{path} does not hold the {covered} episodes its checkpoint covers once each "
+                              f"({covered - found} missing, {len(kept) - found} repeated)")
         if len(kept) < len(df):
             self.write_episodes(kept)
 
@@ -388,6 +392,22 @@ class RunFolder:
                 return state
             raise RunError("; and ".join(errors) + "; no checkpoint of this run can be read: start it again "
                            "(--overwrite)") from None
+
+    def earlier_checkpoint_held(self, latest: Optional[dict], seeds) -> Optional[tuple]:
+        """(file name, state) of the checkpoint before ``latest`` if episodes.csv holds its
+        episodes, each once (a run to resume from when the file lost rows the latest covers);
+        None if it does not, or cannot be read."""
+        try:
+            state = self._read_checkpoint(self.file(PREVIOUS))
+        except DamagedCheckpoint:   # (missing too)
+            return None
+        if latest is None or state["episodes_done"] >= latest["episodes_done"]:
+            return None
+        episodes = dict(zip(seeds, state["collector"]["episode"].tolist()))
+        df = self.episodes()
+        kept = df[df.episode <= df.seed.map(episodes)]
+        held = len(kept) == len(kept.drop_duplicates(["seed", "episode"])) == sum(episodes.values())
+        return (PREVIOUS, state) if held else None
 
     def _read_checkpoint(self, path: Path) -> dict:
         if not path.exists():
@@ -559,7 +579,18 @@ def _collect(run, config: dict, folder: RunFolder, checkpoint: Optional[dict], p
                                 time_steps=False)  # its memory is flat however long it runs (soak.py)
     if checkpoint is not None:
         _restore(folder, checkpoint, env, agent, collector)
-    folder.keep_rows(dict(zip(collector.seeds, collector.episode.tolist())))  # rows past this state come again
+    try:
+        folder.keep_rows(dict(zip(collector.seeds, collector.episode.tolist())))  # rows past this state come again
+    except RowsMissing as err:   # a file cut short: go back to a checkpoint whose rows are all there, if one is
+        earlier = folder.earlier_checkpoint_held(checkpoint, collector.seeds)
+        if earlier is None:
+            raise RunError(f"{err}, and no earlier checkpoint's episodes are all there: start it again "
+                           "(--overwrite)") from None
+        name, checkpoint = earlier
+        print(f"{err}: continuing from {name} ({checkpoint['episodes_done']} episodes done), the episodes after "
+              "it run again", file=sys.stderr)
+        _restore(folder, checkpoint, env, agent, collector)
+        folder.keep_rows(dict(zip(collector.seeds, collector.episode.tolist())))
     every = run.checkpoint_every * len(run.seeds)
     next_at = (collector.episodes_done // every + 1) * every if every else None
 
