@@ -13,7 +13,7 @@ from trl_dgpq.agents.dqn import DQN, DQNConfig
 from trl_dgpq.collectors.evaluate import evaluate
 from trl_dgpq.collectors.runner import RunError
 from trl_dgpq.commands import evaluate as evaluate_command
-from trl_dgpq.commands import train
+from trl_dgpq.commands import prog, train
 from trl_dgpq.envs.f16.env import F16Env
 from trl_dgpq.envs.gym.env import gym_env
 
@@ -130,6 +130,27 @@ def test_a_folder_without_a_checkpoint_is_one_line(tmp_path, capsys):
     assert evaluate_command.main([str(tmp_path), "--no-progress"]) == 2
     assert "error:" in capsys.readouterr().err
 
+
+
+def test_ctrl_c_in_evaluate_says_which_runs_got_their_eval_csv(tmp_path, capsys, monkeypatch):
+    """Ctrl-C while the second of three runs is evaluated: one line naming the run written and the
+    two not, exit 130; eval.csv is whole or absent."""
+    runs = [trained(tmp_path / name, "--env", "corridor", "--agent", "constant", "--seeds", "0,1", "--episodes", 2)
+            for name in ("a", "b", "c")]
+    from trl_dgpq.collectors import evaluate as module
+    real, calls = module.evaluate, []
+
+    def interrupted_second(folder, *args, **kwargs):
+        calls.append(folder)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(folder, *args, **kwargs)
+    monkeypatch.setattr(module, "evaluate", interrupted_second)
+    capsys.readouterr()
+    assert evaluate_command.main([*map(str, runs), "--no-progress"]) == 130
+    assert capsys.readouterr().err == (f"{prog('evaluate')}: interrupted while evaluating {runs[1]}: wrote eval.csv for "
+                                       f"{runs[0]}; no eval.csv written for {runs[1]}, {runs[2]}\n")
+    assert [(r / "eval.csv").exists() for r in runs] == [True, False, False]
 
 
 def test_the_evaluate_command_compares_with_each_seeds_last_n_training_episodes(tmp_path, capsys):

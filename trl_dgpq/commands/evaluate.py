@@ -39,9 +39,18 @@ def run(args) -> int:
     quiet_torchrl()
     if args.episodes < 1:
         raise ValueError(f"--episodes must be positive, got {args.episodes}")
+    written = []
     for folder in map(Path, args.runs):
         out = None if args.out is None else Path(args.out) / (folder.name if len(args.runs) > 1 else "")
-        df = evaluate(folder, args.episodes, progress=not args.no_progress, out=out)
+        try:
+            df = evaluate(folder, args.episodes, progress=not args.no_progress, out=out)
+        except KeyboardInterrupt:   # eval.csv is written whole or not at all: say which runs have one
+            left = [str(f) for f in args.runs[len(written):]]
+            print(f"{prog('evaluate')}: interrupted while evaluating {folder}: "
+                  + (f"wrote eval.csv for {', '.join(written)}; " if written else "")
+                  + f"no eval.csv written for {', '.join(left)}", file=sys.stderr)
+            return 130
+        written.append(str(folder))
         trained = load_run(folder)
         column, label = trained.domain.measure(trained.env_id)
         fmt = lambda value: trained.domain.format_measure(value, trained.env_id)  # noqa: E731
