@@ -767,3 +767,30 @@ def test_sweep_and_reproduce_end_a_signal_with_one_line_and_its_code(tmp_path, m
     assert capsys.readouterr().err == f"interrupted by {name}: continue with the same command\n"
     assert sweep.run_script("sweep.py", "--resume X", interrupted) == code
     assert capsys.readouterr().err == f"interrupted by {name}: continue with --resume X\n"
+
+
+def test_the_plan_estimates_each_experiment_from_the_published_one_like_it(tmp_path, capsys):
+    """A publication holding one corridor run (1 seed x 10 episodes, 1 s per episode for 4, then 2 s):
+    4 episodes of 2 seeds cost 2 x 4 x 1 = 8 s; 20 episodes, past the published 10, cost
+    2 x (10 x 1.6 + 10 x 2) = 72 s (the extra episodes at its last 10 %'s rate); another agent has
+    none like it."""
+    data = tmp_path / "pub" / "data"
+    data.mkdir(parents=True)
+    a = resolve_config(env="corridor", agent="constant", seeds=[5], episodes=10)
+    pd.DataFrame(dict(seed=5, episode=range(1, 11), steps=3, wall_s=[1.0] * 4 + [2.0] * 6)).to_csv(
+        data / "a.csv.xz", index=False)
+    (data / "a.json").write_text(json.dumps(a))
+    (data / "manifest.json").write_text(json.dumps({"experiments": ["a"]}))
+    planned = {"b": resolve_config(env="corridor", agent="constant", seeds=[10, 11], episodes=4),
+               "c": resolve_config(env="corridor", agent="constant", seeds=[10, 11], episodes=20, slip=0.3),
+               "d": resolve_config(env="corridor", agent="random", seeds=[10], episodes=4),
+               "a": a}
+    got = {name: (seconds, how) for name, seconds, how in reproduce.estimate(planned, tmp_path / "pub")}
+    assert got["b"] == (pytest.approx(8.0), "like a, 0 settings apart")
+    assert got["c"] == (pytest.approx(72.0), "like a, 1 setting apart")
+    assert got["d"] == (None, "no published experiment like it") and got["a"] == (pytest.approx(16.0), "measured")
+    text = reproduce.plan_text(planned, tmp_path / "pub")
+    assert "  c: 2 seeds x 20, ~1.2 min (like a, 1 setting apart)\n" in text
+    assert "4 experiments, one job each: ~1.6 min of one core (1 not estimated); wall time 2 cores ~1.2 min" in text
+    assert reproduce.main(["--scale", "smoke", "--only", "f16", "--plan", "--experiments", "f16-pd"]) == 0
+    assert capsys.readouterr().out.startswith("  f16-pd: 1 seed x 3, ~")

@@ -273,6 +273,79 @@ def cost_section(loaded) -> str:
             f"{', '.join(sorted(commits))}.\n")
 
 
+def like(config: dict, measured: dict) -> tuple:
+    """(name, how) of the published experiment whose time per seed-episode stands for a planned one's:
+    itself (the same settings), else the one of the same env and agent with the fewest env and agent
+    settings different (then the most seed-episodes); (None, "") if none has its env and agent."""
+    mine = same_config(config)
+    same = [n for n, c in measured.items() if c["_same"] == mine]
+    if same:
+        return same[0], "measured"
+    found = [n for n, c in measured.items() if all(c["run"].get(k) == config["run"].get(k) for k in ("env", "agent"))]
+    if not found:
+        return None, ""
+
+    def differ(name: str) -> int:
+        theirs = measured[name]["_same"]
+        return sum(theirs[section].get(k) != v for section in ("env", "agent") for k, v in mine[section].items())
+    best = min(found, key=lambda n: (differ(n), -len(measured[n]["_rows"])))
+    return best, f"like {best}, {count(differ(best), 'setting')} apart"
+
+
+def estimate(planned: dict, publication: Path) -> list:
+    """[(name, seconds or None, how)] of each planned experiment, one job each, from a published
+    experiment like it (``like``): with an env-step budget, its seeds times the budget times that
+    one's wall time per step; else its seeds times its episodes times that one's wall time per
+    seed-episode over its first as many episodes (learning changes what an episode costs). A batch
+    of another size costs otherwise per seed: an estimate, not a promise."""
+    from trl_dgpq.analysis import published
+    measured = {}
+    if published.is_published(publication):
+        for name in published.manifest(publication)["experiments"]:
+            run = published.load(publication, name)
+            sections = {k: run.config[k] for k in ("run", "env", "agent")}
+            measured[name] = {**sections, "_same": same_config(sections), "_rows": run.df[["episode", "steps", "wall_s"]]}
+    out = []
+    for name, config in planned.items():
+        source, how = like(config, measured)
+        if source is None:
+            out.append((name, None, "no published experiment like it"))
+            continue
+        rows, run = measured[source]["_rows"], config["run"]
+        if run.get("env_steps"):       # a budget ends it: its steps at the published run's time per step
+            seconds = len(run["seeds"]) * run["env_steps"] * float(rows["wall_s"].sum() / rows["steps"].sum())
+        else:                          # its episodes at the time per seed-episode over as many episodes there
+            ran = int(rows.episode.max())
+            per = float(rows[rows.episode <= run["episodes"]]["wall_s"].mean())
+            # a plan longer than the published run: its later episodes at the rate of its last 10 %
+            tail = float(rows[rows.episode > 0.9 * ran]["wall_s"].mean())
+            seconds = len(run["seeds"]) * (per * min(run["episodes"], ran) + tail * max(0, run["episodes"] - ran))
+        out.append((name, seconds, how))
+    return out
+
+
+def hours(seconds: float) -> str:
+    return f"{seconds / 3600:,.2f} h" if seconds >= 3600 else f"{seconds / 60:.1f} min"
+
+
+def plan_text(planned: dict, publication: Path) -> str:
+    """What ``--plan`` prints: each part's experiments with their estimated time, the total on one
+    core and the makespan on more."""
+    found = estimate(planned, publication)
+    lines, jobs = [], []
+    for name, seconds, how in found:
+        config = planned[name]["run"]
+        size = f"{count(len(config['seeds']), 'seed')} x {config['episodes']:,}"
+        lines.append(f"  {name}: {size}, " + (f"~{seconds / 60:,.1f} min ({how})" if seconds is not None else how))
+        jobs += [seconds] if seconds is not None else []
+    unknown = sum(s is None for _, s, _ in found)
+    total = sum(jobs)
+    cores = ", ".join(f"{n} cores ~{hours(sweep.makespan(jobs, n))}" for n in CLUSTERS) if jobs else "-"
+    return ("\n".join(lines) + f"\n{len(found)} experiments, one job each: ~{hours(total)} of one core"
+            + (f" ({unknown} not estimated)" if unknown else "") + f"; wall time {cores} (longest job first; "
+            f"times per seed-episode from {publication}, measured on 2 loaded cores)\n")
+
+
 def publish(out: Path, to: Path, scale: str, only=None) -> list:
     """What the repository keeps of the reproduction in ``out`` (e.g. into results/report): the
     per-episode data and configs of its finished experiments (``analysis/published.py``), the data
@@ -353,6 +426,9 @@ def main(argv=None) -> int:
     p.add_argument("--experiments", nargs="+", default=None, metavar="PATTERN",
                    help="run only the planned experiments these names or shell patterns match (e.g. 'liq-dgpq-*'); "
                         "the plan stays whole, and a later call without it runs the rest")
+    p.add_argument("--plan", action="store_true",
+                   help="run nothing: list the planned experiments with their estimated time (from the published "
+                        "runs like each) and the wall time on 2, 16, 64 and 256 cores")
     p.add_argument("--report", action="store_true",
                    help="run nothing: write REPORT.md, claims.md and results.csv from what has finished so far "
                         "(a domain's section once all its experiments have)")
@@ -367,6 +443,10 @@ def main(argv=None) -> int:
 
     def body() -> int:
         now = chosen(planned, args.experiments)
+        if args.plan:
+            print(plan_text({n: planned[n] for n in now}, Path(__file__).resolve().parents[2] / "results" / "report"),
+                  end="")
+            return 0
         if args.report:
             if not (out / sweep.SWEEP).is_file():
                 raise sweep.SweepError(f"{out} holds no reproduction to report on")
