@@ -397,11 +397,13 @@ class RunFolder:
         """(file name, state) of the checkpoint before ``latest`` if episodes.csv holds its
         episodes, each once (a run to resume from when the file lost rows the latest covers);
         None if it does not, or cannot be read."""
+        if latest is None or not self.file(EPISODES).exists():
+            return None
         try:
             state = self._read_checkpoint(self.file(PREVIOUS))
         except DamagedCheckpoint:   # (missing too)
             return None
-        if latest is None or state["episodes_done"] >= latest["episodes_done"]:
+        if state["episodes_done"] >= latest["episodes_done"]:
             return None
         episodes = dict(zip(seeds, state["collector"]["episode"].tolist()))
         df = self.episodes()
@@ -539,8 +541,24 @@ def lengthen(folder: RunFolder, config: dict, **lengths) -> dict:
 def resume(folder: RunFolder, config: dict, progress: bool = True) -> pd.DataFrame:
     """Continue the run in ``folder`` (config from ``resumable_config``) from its last
     checkpoint, or from the start if it has none. Where the config is longer than the run
-    (``lengthen``), from the last state at which the seeds to go on had just stopped."""
-    return _execute(config, folder, folder.load_checkpoint(), progress)
+    (``lengthen``), from the last state at which the seeds to go on had just stopped. Where
+    episodes.csv lost rows the latest checkpoint covers (a file cut short), from the previous
+    checkpoint if the file holds its rows, saying so; else RunError."""
+    checkpoint = folder.load_checkpoint()
+    try:
+        return _execute(config, folder, checkpoint, progress)
+    except RowsMissing as err:   # raised before anything ran: nothing of that attempt is kept
+        earlier = folder.earlier_checkpoint_held(checkpoint, load_sections(config)[0].seeds)
+        if earlier is None:
+            raise RunError(f"{err}, and no earlier checkpoint's episodes are all there: start it again "
+                           "(--overwrite)") from None
+        name, checkpoint = earlier
+        print(f"{err}: continuing from {name} ({checkpoint['episodes_done']} episodes done), the episodes after "
+              "it run again", file=sys.stderr)
+        # the latest no longer matches the rows: the previous takes its place (else the next save
+        # would keep the latest as the fallback)
+        os.replace(folder.file(PREVIOUS), folder.file(CHECKPOINT))
+        return _execute(config, folder, checkpoint, progress)
 
 
 def _alive(pid) -> bool:
@@ -579,18 +597,7 @@ def _collect(run, config: dict, folder: RunFolder, checkpoint: Optional[dict], p
                                 time_steps=False)  # its memory is flat however long it runs (soak.py)
     if checkpoint is not None:
         _restore(folder, checkpoint, env, agent, collector)
-    try:
-        folder.keep_rows(dict(zip(collector.seeds, collector.episode.tolist())))  # rows past this state come again
-    except RowsMissing as err:   # a file cut short: go back to a checkpoint whose rows are all there, if one is
-        earlier = folder.earlier_checkpoint_held(checkpoint, collector.seeds)
-        if earlier is None:
-            raise RunError(f"{err}, and no earlier checkpoint's episodes are all there: start it again "
-                           "(--overwrite)") from None
-        name, checkpoint = earlier
-        print(f"{err}: continuing from {name} ({checkpoint['episodes_done']} episodes done), the episodes after "
-              "it run again", file=sys.stderr)
-        _restore(folder, checkpoint, env, agent, collector)
-        folder.keep_rows(dict(zip(collector.seeds, collector.episode.tolist())))
+    folder.keep_rows(dict(zip(collector.seeds, collector.episode.tolist())))  # rows past this state come again
     every = run.checkpoint_every * len(run.seeds)
     next_at = (collector.episodes_done // every + 1) * every if every else None
 

@@ -467,31 +467,34 @@ def test_an_interrupted_train_counts_its_episodes_over_all_seeds(tmp_path, stop_
 
 def test_resume_goes_back_to_the_previous_checkpoint_when_the_file_lost_rows(tmp_path, stop_run_after, capsys):
     """episodes.csv cut short (rows the latest checkpoint covers lost): resume says so in one line and
-    goes on from checkpoint.prev.pt, whose rows are all there, to the CSV an uninterrupted run
-    writes; with rows lost that no checkpoint's state predates, it refuses in one line."""
-    config = resolve_config(agent="random", seeds=[0, 1, 2], episodes=8, max_steps=10, checkpoint_every=2)
+    goes on from checkpoint.prev.pt, whose rows are all there, with a DGPQ whose state (Q̂, GPs) is
+    that checkpoint's alone, to the CSV an uninterrupted run writes; with rows lost that no
+    checkpoint predates, or the file gone, it refuses in one line."""
+    config = resolve_config(env="square", agent="dgpq", seeds=[0, 1, 2], episodes=8, max_steps=10, checkpoint_every=2)
     reference = runner.start(config, runner.RunFolder.create(str(tmp_path / "ref"), "x"), progress=False)
-    folder = runner.RunFolder.create(str(tmp_path / "run"), "x")
-    stop_run_after(7, "signal")        # 3 rows a batch: checkpoints at 6, 12 and 18 episodes, stopped at 21
-    with pytest.raises(runner.Interrupted):
-        runner.start(config, folder, progress=False)
+
+    def interrupted(name):
+        folder = runner.RunFolder.create(str(tmp_path / name), "x")
+        stop_run_after(7, "signal")    # 3 rows a batch: checkpoints at 6, 12 and 18 episodes, stopped at 21
+        with pytest.raises(runner.Interrupted):
+            runner.start(config, folder, progress=False)
+        return folder, folder.file(runner.EPISODES)
+    folder, path = interrupted("run")
     assert folder.load_checkpoint()["episodes_done"] == 21
     assert torch.load(folder.file(runner.PREVIOUS), weights_only=True)["episodes_done"] == 18
-    path = folder.file(runner.EPISODES)
-    lines = path.read_text().splitlines(keepends=True)
-    path.write_text("".join(lines[:-2]))          # two rows lost: 19 of the 21 the latest covers
+    path.write_text("".join(path.read_text().splitlines(keepends=True)[:-2]))   # 19 of the 21 covered
     capsys.readouterr()
     again = runner.resume(folder, runner.resumable_config(folder), progress=False)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "(2 missing, 0 repeated): continuing from checkpoint.prev.pt (18 episodes done)" in err[0]
-    pd.testing.assert_frame_equal(again.drop(columns=list(TIMING_COLUMNS)), reference.drop(columns=list(TIMING_COLUMNS)))
+    timing = list(TIMING_COLUMNS)
+    pd.testing.assert_frame_equal(again.drop(columns=timing), reference.drop(columns=timing))
 
-    folder = runner.RunFolder.create(str(tmp_path / "cut"), "x")
-    stop_run_after(7, "signal")
-    with pytest.raises(runner.Interrupted):
-        runner.start(config, folder, progress=False)
-    path = folder.file(runner.EPISODES)
+    folder, path = interrupted("cut")
     path.write_text("".join(path.read_text().splitlines(keepends=True)[:-5]))   # 16: fewer than prev's 18
     with pytest.raises(runner.RunError, match=r"\(5 missing, 0 repeated\), and no earlier checkpoint's episodes "
                                               r"are all there: start it again \(--overwrite\)"):
+        runner.resume(folder, runner.resumable_config(folder), progress=False)
+    path.unlink()
+    with pytest.raises(runner.RunError, match="is missing: its checkpoint covers 21 episodes, and no earlier"):
         runner.resume(folder, runner.resumable_config(folder), progress=False)

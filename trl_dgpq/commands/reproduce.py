@@ -97,7 +97,8 @@ def experiments(scale: str, only=None) -> dict:
             if sizes is None:  # an experiment of some scales only
                 continue
             seeds, episodes, *budget = sizes   # (seeds, episodes[, env steps per seed])
-            seeds = list(range(FIRST_REPORTING, FIRST_REPORTING + seeds))   # past the seeds development explored
+            first = getattr(analysis, "FIRST_SEED", FIRST_REPORTING)   # past the seeds development explored
+            seeds = list(range(first, first + seeds))
             out[name] = resolve_config({"env": d.examples()[0], **settings, "seeds": seeds, "episodes": episodes,
                                         "env_steps": budget[0] if budget else 0})
     return out
