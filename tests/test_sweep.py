@@ -334,6 +334,11 @@ def test_reproduce_runs_the_chosen_experiments_now_and_the_rest_later(tmp_path, 
     assert reproduce.main(["--scale", "smoke", "--only", "f16", "--out", str(out), "--workers", "1",
                            "--experiments", "nowhere"]) == 2      # refused in one line, nothing run
     assert "no planned experiment matches" in capsys.readouterr().err
+    assert reproduce.main(["--scale", "smoke", "--only", "f16", "--out", str(out), "--report",
+                           "--experiments", "f16-pd"]) == 2
+    assert "drop --experiments" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="no part named f16-nowhere; the parts: square, "):
+        reproduce.experiments("smoke", ["f16-nowhere"])
 
 
 def test_each_finished_job_reports_how_many_are_done_failed_and_to_go(tmp_path):
@@ -791,6 +796,13 @@ def test_the_plan_estimates_each_experiment_from_the_published_one_like_it(tmp_p
     assert got["d"] == (None, "no published experiment like it") and got["a"] == (pytest.approx(16.0), "measured")
     text = reproduce.plan_text(planned, tmp_path / "pub")
     assert "  c: 2 seeds x 20, ~1.2 min (like a, 1 setting apart)\n" in text
-    assert "4 experiments, one job each: ~1.6 min of one core (1 not estimated); wall time 2 cores ~1.2 min" in text
+    assert "4 experiments, one job each: ~1.6 min of one core and wall time 2 cores ~1.2 min" in text
+    assert "both without the 1 not estimated (longest job first" in text
+    budget = {"e": resolve_config(env="corridor", agent="constant", seeds=[10], episodes=4, env_steps=9),
+              "g": resolve_config(env="corridor", agent="constant", seeds=[10], episodes=100, env_steps=9)}
+    got = {n: s for n, s, _ in reproduce.estimate(budget, tmp_path / "pub")}   # a: 3 steps an episode, 16 s over 30 steps
+    assert got["e"] == pytest.approx(9 * 16 / 30) and got["g"] == pytest.approx(9 * 16 / 30)
+    small = {"h": resolve_config(env="corridor", agent="constant", seeds=[10], episodes=2, env_steps=9)}
+    assert reproduce.estimate(small, tmp_path / "pub")[0][1] == pytest.approx(2 * 3 * 16 / 30)  # its 2 episodes first
     assert reproduce.main(["--scale", "smoke", "--only", "f16", "--plan", "--experiments", "f16-pd"]) == 0
     assert capsys.readouterr().out.startswith("  f16-pd: 1 seed x 3, ~")

@@ -946,4 +946,5 @@ def test_a_signal_while_a_trial_is_recorded_lets_the_record_finish(tmp_path, mon
     (done,) = trials_of(out)
     assert done.state == optuna.trial.TrialState.COMPLETE and done.value is not None
     assert logged and logged[-1].startswith("trial 0: ")
-    assert not any((out / "trials" / "0000").glob("**/checkpoint*"))      # tidied: the record was written whole
+    assert (out / "trials" / "0000" / "episodes.csv").is_file()            # its rows kept, and tidied:
+    assert not any((out / "trials" / "0000").glob("**/checkpoint*"))      # the record was written whole

@@ -90,6 +90,10 @@ def same_config(config: dict) -> dict:
 def experiments(scale: str, only=None) -> dict:
     """{experiment name: resolved config} at ``scale`` (an experiment runs at the scales its sizes
     name: one that only decides claims is left out of the scales too small to decide them)."""
+    unknown = sorted(set(only or ()) - {part.name for part, _ in reproductions()})
+    if unknown:
+        raise ValueError(f"no part named {', '.join(unknown)}; the parts: "
+                         + ", ".join(part.name for part, _ in reproductions()))
     out = {}
     for d, analysis in reproductions(only):
         for name, settings, *own in analysis.REPRODUCE:
@@ -313,8 +317,9 @@ def estimate(planned: dict, publication: Path) -> list:
             out.append((name, None, "no published experiment like it"))
             continue
         rows, run = measured[source]["_rows"], config["run"]
-        if run.get("env_steps"):       # a budget ends it: its steps at the published run's time per step
-            seconds = len(run["seeds"]) * run["env_steps"] * float(rows["wall_s"].sum() / rows["steps"].sum())
+        if run.get("env_steps"):       # a budget, or its episodes at the published run's steps per episode
+            steps = min(run["env_steps"], run["episodes"] * float(rows["steps"].mean()))
+            seconds = len(run["seeds"]) * steps * float(rows["wall_s"].sum() / rows["steps"].sum())
         else:                          # its episodes at the time per seed-episode over as many episodes there
             ran = int(rows.episode.max())
             per = float(rows[rows.episode <= run["episodes"]]["wall_s"].mean())
@@ -343,7 +348,8 @@ def plan_text(planned: dict, publication: Path) -> str:
     total = sum(jobs)
     cores = ", ".join(f"{n} cores ~{hours(sweep.makespan(jobs, n))}" for n in CLUSTERS) if jobs else "-"
     return ("\n".join(lines) + f"\n{len(found)} experiments, one job each: ~{hours(total)} of one core"
-            + (f" ({unknown} not estimated)" if unknown else "") + f"; wall time {cores} (longest job first; "
+            + (f" and wall time {cores}, both without the {unknown} not estimated" if unknown else f"; wall time {cores}")
+            + " (longest job first; "
             f"times per seed-episode from {publication}, measured on 2 loaded cores)\n")
 
 
@@ -444,6 +450,8 @@ def main(argv=None) -> int:
 
     def body() -> int:
         now = chosen(planned, args.experiments)
+        if args.experiments and args.report:
+            raise sweep.SweepError("--report writes the report of every finished experiment: drop --experiments")
         if args.plan:
             print(plan_text({n: planned[n] for n in now}, Path(__file__).resolve().parents[2] / "results" / "report"),
                   end="")
