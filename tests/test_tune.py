@@ -372,8 +372,10 @@ def test_ctrl_c_hands_the_trial_on_and_says_how_to_continue(tmp_path, capsys, st
     assert tune.main(args) == 130
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and err.endswith(f"continue with: python scripts/tune.py --out {out} --trials 1")
+    capsys.readouterr()
     assert tune.main(["--out", out, "--trials", "1"]) == 0
     stopped, retry = trials_of(out)
+    assert f"trial {retry.number} (the retry of trial 0, its run continued): " in capsys.readouterr().out
     assert stopped.user_attrs["retried"] == "interrupted by SIGINT"
     assert retry.state == optuna.trial.TrialState.COMPLETE and retry.user_attrs["resumed"]["episodes_done"] >= 1
 

@@ -38,17 +38,20 @@ class Staging:
         else:
             if math.isnan(value):
                 error = "no seed ended an episode within the budget"
+        # a retried trial has a number of its own (Optuna's): say whose run it went on with
+        number = trial.number if trial.user_attrs.get("retry_of") is None else \
+            f"{trial.number} (the retry of trial {trial.user_attrs['retry_of']}, its run continued)"
         with held(stop):
             if pruned is not None:
                 study.tell(trial, state=TrialState.PRUNED)
-                log(f"trial {trial.number}: pruned {pruned}")
+                log(f"trial {number}: pruned {pruned}")
             elif error is not None:
                 trial.set_user_attr("error", error)
                 study.tell(trial, state=TrialState.FAIL)
-                log(f"trial {trial.number}: failed: {error}")
+                log(f"trial {number}: failed: {error}")
             else:
                 study.tell(trial, value)
-                log(f"trial {trial.number}: {self.objective.name} {value:.6g} with "
+                log(f"trial {number}: {self.objective.name} {value:.6g} with "
                     f"{shown(trial.user_attrs['settings'])}")
             self.tidy(self.folder(trial.number))
 
