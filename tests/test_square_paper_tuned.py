@@ -1,0 +1,71 @@
+"""The square on GWH14's reward, tuned and validated (envs/square/paper_tuned.py): its plan, and its
+claims' measures on runs whose values are known."""
+import pandas as pd
+import pytest
+
+from trl_dgpq.analysis.claims import AGREES, BELOW, MET, NO_LEARNING, judge
+from trl_dgpq.analysis.runs import Run
+from trl_dgpq.commands import reproduce
+from trl_dgpq.envs.square import paper_tuned as m
+
+
+def test_the_plan_is_each_learners_validated_preset_uncapped_within_the_budget():
+    """(Registered in analysis.APART once both studies have written ``paper-validated``: until then
+    the plan is read as declared.)"""
+    assert [name for name, *_ in m.REPRODUCE] == ["square-pt-dgpq", "square-pt-dqn", "square-pt-random"]
+    settings = {name: s for name, s in m.REPRODUCE}
+    assert settings["square-pt-dgpq"] == dict(agent="dgpq", preset="paper-validated", max_steps=20_000)
+    assert settings["square-pt-dqn"] == dict(agent="dqn", preset="paper-validated", max_steps=20_000)
+    assert settings["square-pt-random"] == dict(agent="random", preset="paper", max_steps=20_000)
+    assert m.SCALES["report"] == (20, 100, 10_000) and m.FIRST_SEED == 10
+
+
+def run_of(name, steps, terminated=True, budget=10_000):
+    """A run of seeds 10-29 whose episode e of seed s takes ``steps(s, e)`` steps."""
+    rows = [dict(seed=s, episode=e, steps=steps(s, e), terminated=terminated if e == 1 else True, wall_s=0.01)
+            for s in range(10, 30) for e in range(1, 101)]
+    df = pd.DataFrame(rows)
+    df["env_steps"] = df.groupby("seed")["steps"].cumsum()
+    df = df[df.env_steps <= budget].reset_index(drop=True)
+    config = {"run": {"env": "square", "agent": "dgpq", "preset": "paper-validated", "env_steps": budget},
+              "env": {"reward": "paper", "max_steps": 20_000}, "agent": {}}
+    return Run(None, df, config)
+
+
+def test_the_claims_measure_what_they_say():
+    runs = {"square-pt-dgpq": run_of("d", lambda s, e: 120 if e == 1 else 18),      # meets the threshold at once
+            "square-pt-dqn": run_of("q", lambda s, e: 400 if e == 1 else 40 if e < 50 else 20),
+            "square-pt-random": run_of("r", lambda s, e: 500)}
+    got = {c.key: judge(c, runs, "report") for c in m.CLAIMS}
+    assert got["square-paper-tuned/episode-1"].verdict == AGREES                   # 120 within 3x of 100
+    assert got["square-paper-tuned/episodes-3+"].verdict == AGREES                 # 18 within 1.5x of 20
+    assert got["square-paper-tuned/dgpq-vs-dqn"].verdict == MET
+    # DGPQ: episodes 1-10 average (120 + 9 x 18) / 10 = 28.2 > 25; episodes 2-11 average 18, at 120 + 10 x 18
+    assert m.to_threshold(runs["square-pt-dgpq"].df, 10_000).tolist() == [300.0] * 20
+    slow = {**runs, "square-pt-dgpq": run_of("d", lambda s, e: 400 if e == 1 else 40)}
+    assert m.to_threshold(slow["square-pt-dgpq"].df, 10_000).tolist() == [10_000.0] * 20   # never: the budget
+    assert judge(m.CLAIMS[1], slow, "report").verdict == BELOW
+    wander = {**runs, "square-pt-dgpq": run_of("d", lambda s, e: 500)}
+    assert judge(m.CLAIMS[1], wander, "report").verdict == NO_LEARNING
+
+
+def test_seeds_without_an_episode_three_are_censored_not_dropped():
+    long = {"square-pt-dgpq": run_of("d", lambda s, e: 6_000 if s < 15 and e <= 2 else 18)}   # 5 seeds: budget gone
+    got = m.later_episodes("square-pt-dgpq")(long)
+    assert got.censored == "5 of 20 seeds ran no episode 3 within the budget" and got.point == 18
+
+
+def test_episode_one_cut_before_the_goal_is_censored():
+    cut = {"square-pt-dgpq": run_of("d", lambda s, e: 10_000 if e == 1 else 18, terminated=False)}
+    got = m.episode_one("square-pt-dgpq")(cut)
+    assert got.censored == "20 of 20 seeds cut before the goal" and got.top == float("inf")
+    assert judge(m.CLAIMS[0], cut, "report").verdict == BELOW          # at least 10,000: beyond 3 x 100 either way
+
+
+def test_the_section_names_each_run_and_its_measures(tmp_path):
+    runs = {"square-pt-dgpq": run_of("d", lambda s, e: 120 if e == 1 else 18),
+            "square-pt-dqn": run_of("q", lambda s, e: 400 if e == 1 else 40),
+            "square-pt-random": run_of("r", lambda s, e: 500)}
+    text = m.reproduce_section(runs, tmp_path, "label", "title", [])
+    assert "| dgpq | paper-validated | 120 | 18.0 | 20 of 20 | 300 | " in text
+    assert "| dqn | paper-validated | 400 | 40.0 | 0 of 20 | 10,000 | " in text
