@@ -291,12 +291,12 @@ class Ablation:
         self.CLAIMS = declared_claims(f)
         self.TITLE = (f"How much of the model does DGPQ need? The F-16, {heading}, under potentials from none to "
                       "a wrong model")
-        self.SUMMARY = ("DGPQ at L_Q 5 and 10 and DQN" + (" (at its defaults and tuned by its own validated studies)"
-                                                          if f == "05" else " at its defaults") + ", each shaped by no potential, a model-free one (`cost`), the "
-                        "LQR's value from the true linearisation, or from one whose every entry is off by up to 20 % "
-                        f"or 50 % ({'three fixed draws' if len(DRAWS[f]) > 1 else 'one fixed draw'} each); 20 fresh seeds "
-                        "(30-49) x 1,000 episodes, judged on GWH14's unshaped reward. The LQR potentials use the model: counted "
-                        "apart.")
+        dqn = " (at its defaults and tuned by its own validated studies)" if f == "05" else " at its defaults"
+        draws = "three fixed draws" if len(DRAWS[f]) > 1 else "one fixed draw"
+        self.SUMMARY = (f"DGPQ at L_Q 5 and 10 and DQN{dqn}, each shaped by no potential, a model-free one (`cost`), "
+                        "the LQR's value from the true linearisation, or from one whose every entry is off by up to "
+                        f"20 % or 50 % ({draws} each); 20 fresh seeds (30-49) x 1,000 episodes, judged on GWH14's "
+                        "unshaped reward. The LQR potentials use the model: counted apart.")
 
     def reproduce_section(self, runs: dict, out: Path, label: str, title: str, judged: list) -> str:
         f = self.formulation

@@ -8,8 +8,9 @@ the winner of a 30-trial Optuna study from the ``paper`` preset (seeds 1000-1004
 budget, episodes uncapped at 20,000 steps, the objective the env steps to the threshold), its 3
 best trials and the base preset run again on the validation seeds 1005-1014, the best there kept
 (``tune --validate 3``; envs/square/tuned.json records each study). A random walk is the trivial
-baseline. 20 reporting seeds (30-49: 10-19 ran `paper` uncapped already, and a validation may keep it), 100 episodes within a 10,000-step budget, episodes capped at
-20,000 steps so that episode 1 is never cut near GWH14's ~100 or the seed report's 1,000-5,000.
+baseline. 20 reporting seeds (30-49: 10-19 ran `paper` uncapped already, and a validation may
+keep it), 100 episodes within a 10,000-step budget, episodes capped at 20,000 steps so that
+episode 1 is never cut near GWH14's ~100 or the seed report's 1,000-5,000.
 
 The claims, fixed here before any reporting run: GWH14's episode 1 (~100 steps) and episodes 3+
 (~20), by the square's rules (analysis.py), on tuned DGPQ; and P(DGPQ reaches the threshold in
