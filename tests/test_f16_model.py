@@ -8,20 +8,35 @@ from trl_dgpq.analysis.runs import Run
 from trl_dgpq.commands import reproduce
 from trl_dgpq.envs.f16 import model_ablation as m
 
-CLAIMS = m.FLIGHT_05.CLAIMS + m.GWH14.CLAIMS
 SEEDS = list(range(30, 50))
+
+
+def claims():
+    """Built now, not at import (a mutation test switches a mutant on after the imports)."""
+    return m.declared_claims("05") + m.declared_claims("gwh14")
 
 
 @pytest.fixture(scope="module")
 def planned():
-    return reproduce.experiments("report", ["f16-model", "f16-model-gwh14"])
+    """The plan as reproduce resolves it, from parts built now (as the registered ones are)."""
+    from trl_dgpq.collectors.experiment import resolve_config
+    out = {}
+    for part in (m.Ablation("05", m.SCALES), m.Ablation("gwh14", m.GWH14_SCALES)):
+        for name, settings, *own in part.REPRODUCE:
+            seeds, episodes = (own[0] if own else part.SCALES)["report"]
+            out[name] = resolve_config({"env": "f16", **settings, "seeds": list(range(part.FIRST_SEED, part.FIRST_SEED
+                                                                                      + seeds)), "episodes": episodes})
+    return out
 
 
 def test_every_learner_meets_every_potential_with_its_formulations_settings(planned):
     parts = reproduce.reproductions(["f16-model", "f16-model-gwh14"])
     assert [(p.name, a) for p, a in parts] == [("f16-model", m.FLIGHT_05), ("f16-model-gwh14", m.GWH14)]
     assert not any(n.startswith("f16-model") for n in reproduce.experiments("report", ["f16"]))  # apart from f16's
-    assert len(reproduce.experiments("report", ["f16-model"])) == 9 * 4 + 2 and len(planned) == 38 + 5 * 3 + 2
+    registered = reproduce.experiments("report", ["f16-model", "f16-model-gwh14"])
+    assert {n: reproduce.same_config(c) for n, c in registered.items()} == \
+        {n: reproduce.same_config(c) for n, c in planned.items()}
+    assert len(planned) == (9 * 4 + 2) + (5 * 3 + 2)
     wrong = {(c["env"]["potential_model_error"], c["env"]["potential_model_draw"]) for n, c in planned.items()
              if n.startswith("f16-model-05-") and n.endswith("-dqn")}
     assert wrong == {(0.0, 0)} | {(e, d) for e in (0.2, 0.5) for d in (1, 2, 3)}
@@ -71,7 +86,7 @@ def values(name, seed):
 
 def test_the_claims_measure_what_they_say(planned):
     runs = runs_with(planned, values)
-    got = {c.key: judge(c, runs, "report", planned) for c in CLAIMS}
+    got = {c.key: judge(c, runs, "report", planned) for c in claims()}
     assert len(got) == 20
     assert got["f16-model/05/lqr/dgpq-vs-dqn"].verdict == MET          # every DGPQ seed above every tuned DQN seed
     assert got["f16-model/05/lqr/dgpq-vs-dqn"].ours.startswith("1.00")
@@ -83,7 +98,7 @@ def test_the_claims_measure_what_they_say(planned):
     halfway = m.progress("05", "lqr-e20")(runs)        # (-80 + 140) / (-70 + 140) = 0.857, less each seed's spread
     assert halfway.point == pytest.approx((-80.095 + 140) / 70, abs=0.002) and "over 20 seeds" in halfway.statistic
     slow = runs_with(planned, lambda n, s: -120.0 if n.endswith("dgpq-lq5") else values(n, s))
-    assert judge(next(c for c in CLAIMS if c.key == "f16-model/05/cost/halfway"), slow, "report",
+    assert judge(next(c for c in claims() if c.key == "f16-model/05/cost/halfway"), slow, "report",
                  planned).verdict == NOT_MET                           # (-120 + 140) / 70 = 0.29
 
 
@@ -92,7 +107,7 @@ def test_draws_are_averaged_per_seed_and_model_knowledge_is_named(planned):
     pooled = m.per_seed(runs, m.members("05", "lqr-e20", "dqn"))     # each seed: (-60 - 90 - 90) / 3 + (s - 30)
     assert pooled.tolist() == pytest.approx([-80.0 + k for k in range(20)])
     assert m.members("gwh14", "lqr-e20", "dqn") == ["f16-model-gwh14-lqr-e20-d1-dqn"]
-    variant = {c.key: judge(c, runs_with(planned, values), "report", planned).variant for c in CLAIMS}
+    variant = {c.key: judge(c, runs_with(planned, values), "report", planned).variant for c in claims()}
     assert not variant["f16-model/05/none/dgpq-vs-dqn"] and not variant["f16-model/gwh14/cost/halfway"]
     assert variant["f16-model/05/lqr-e50/halfway"] and variant["f16-model/gwh14/lqr/dgpq-vs-dqn"]
     cut = dict(runs)
@@ -121,8 +136,9 @@ def test_stable_counts_seeds_within_ten_percent_of_pd():
 
 def test_the_section_and_its_figure(planned, tmp_path):
     runs = runs_with(planned, values)
-    judged = [judge(c, runs, "report", planned) for c in m.FLIGHT_05.CLAIMS]
-    text = m.FLIGHT_05.reproduce_section(runs, tmp_path, "label", "title", judged)
+    part = m.Ablation("05", m.SCALES)
+    judged = [judge(c, runs, "report", planned) for c in part.CLAIMS]
+    text = part.reproduce_section(runs, tmp_path, "label", "title", judged)
     assert (tmp_path / "f16-model" / "f16_model.png").stat().st_size > 10_000
     assert "f16-model/f16_model.png" in text and "GWH14's formulation" not in text.split("\n\n", 1)[1]
     assert "| lqr-e20-d3 | yes | dgpq-lq5 (flight-05-shaped) | -80 [-80, -80] |" in text
@@ -130,7 +146,8 @@ def test_the_section_and_its_figure(planned, tmp_path):
     assert "nothing -140.0, pd -70.0" in text
     assert text.startswith("## How much of the model does DGPQ need? The F-16, `flight-05`") and "At episodes 91-100" in text
     assert "P(dgpq-lq5 improves on dqn-tuned)" in text
-    assert m.GWH14.reproduce_section(runs, tmp_path, "", "", []).count("| lqr-e50-d1 |") == 3   # one draw, 3 learners
+    assert m.Ablation("gwh14", m.GWH14_SCALES).reproduce_section(runs, tmp_path, "", "", []).count(
+        "| lqr-e50-d1 |") == 3   # one draw, 3 learners
     short = {n: Run(None, r.df[r.df.episode <= 20], r.config) for n, r in runs.items()}
     assert m.window_of(short, "05") == (11, 20)
-    assert "At episodes 11-20" in m.FLIGHT_05.reproduce_section(short, tmp_path, "label", "title", [])
+    assert "At episodes 11-20" in part.reproduce_section(short, tmp_path, "label", "title", [])
