@@ -1,5 +1,7 @@
 """The F-16's potential ablation with model error (envs/f16/model_ablation.py): its plan, its
 claims' measures on runs whose values are known, and its section."""
+import re
+
 import pandas as pd
 import pytest
 
@@ -60,12 +62,14 @@ def test_every_learner_meets_every_potential_with_its_formulations_settings(plan
     assert planned["f16-model-05-nothing"]["agent"]["action"] == "hold"
 
 
-def runs_with(planned, value) -> dict:
-    """Every planned experiment on seeds 30-49 x 100 episodes, each seed's return ``value(name, seed)``."""
+def runs_with(planned, value, trend: float = 0.0, episodes: int = 100) -> dict:
+    """Every planned experiment on seeds 30-49, each seed's return ``value(name, seed)`` plus ``trend``
+    per episode for the learners (the scripted references do not learn)."""
     out = {}
     for name, config in planned.items():
-        rows = [dict(seed=s, episode=e, steps=20, wall_s=0.01, terminated=False, **{"return": value(name, s)})
-                for s in config["run"]["seeds"] for e in range(1, 101)]
+        slope = 0.0 if name.endswith(("nothing", "pd")) else trend
+        rows = [dict(seed=s, episode=e, steps=20, wall_s=0.01, terminated=False, **{"return": value(name, s) + slope * e})
+                for s in config["run"]["seeds"] for e in range(1, episodes + 1)]
         out[name] = Run(None, pd.DataFrame(rows), config)
     return out
 
@@ -151,3 +155,54 @@ def test_the_section_and_its_figure(planned, tmp_path):
     short = {n: Run(None, r.df[r.df.episode <= 20], r.config) for n, r in runs.items()}
     assert m.window_of(short, "05") == (11, 20)
     assert "At episodes 11-20" in part.reproduce_section(short, tmp_path, "label", "title", [])
+
+
+def test_the_tables_by_hand(planned, tmp_path):
+    """Returns growing 0.2 per episode: a learner's window of episodes a-b averages its value plus
+    0.2 (a + b) / 2, e.g. -70 + 1.1 at 1-10 and -70 + 19.1 at 91-100 (less each seed's spread);
+    episodes past the run's 100 are '-'. The P(improvement) table and the advantage's sentence in
+    full."""
+    runs = runs_with(planned, values, trend=0.2)
+    part = m.Ablation("05", m.SCALES)
+    text = part.reproduce_section(runs, tmp_path, "label", "title", [])
+    assert "| lqr | yes | dgpq-lq5 (flight-05-shaped) | -69 [-69, -69] | -51 [-51, -51] | - | - | 20 of 20 |" in text
+    assert "| none | no | dqn (flight-05-shaped) | -109 [-109, -109] | -91 [-91, -91] | - | - | 0 of 20 |" in text
+    assert ("At episodes 91-100, each seed's mean (an error level's: averaged over its draws), rliable's "
+            "P(improvement) [95 % CI]:\n\n| potential | P(dgpq-lq5 improves on dqn) | P(dgpq-lq5 improves on dqn-tuned) "
+            "| P(dqn-tuned improves on dqn) | P(dgpq-lq10 improves on dqn) | P(dgpq-lq5 improves on dgpq-lq10) |\n"
+            "|---|---|---|---|---|---|\n"
+            "| no potential | 1.00 | 1.00 | 1.00 | 0.00 | 1.00 |\n") in text
+    assert re.search(r"\| LQR, model off by up to 50 % \| 1\.00 \| 0\.50 \[0\.\d\d, 0\.\d\d\] \| 1\.00 \| 0\.00 \| 1\.00 \|\n\n",
+                     text)                                               # equal: P 0.5, with its bootstrap interval
+    assert re.search(r"dgpq-lq5 is clearly ahead with the true model; from a model error of ±50% it is no longer "
+                     r"clearly ahead \(P\(dgpq-lq5 improves on dqn-tuned\) \[95 % CI\] at model error ±0% 1\.00; "
+                     r"±20% 1\.00; ±50% 0\.50 \[0\.\d\d, 0\.\d\d\]\)\.", text)
+    gwh14 = m.Ablation("gwh14", m.GWH14_SCALES).reproduce_section(runs, tmp_path, "", "", [])
+    assert "| no potential | 1.00 | 0.00 | 1.00 |\n" in gwh14 and "dqn-tuned" not in gwh14
+    behind = runs_with(planned, lambda n, s: -130.0 - (s - 30) * 0.01 if n.endswith("dgpq-lq5") else values(n, s))
+    assert m.advantage_lost(behind, "05").startswith("dqn-tuned is clearly ahead with the true model; it stays "
+                                                     "clearly ahead up to ±50%, the largest error run (P(")
+    with pytest.raises(ValueError, match="ran 20 episodes, not to episode 100"):
+        m.per_seed(runs_with(planned, values, episodes=20), m.members("05", "none", "dqn"))
+
+
+def test_the_claims_say_what_they_compare(planned):
+    got = {c.key: c for c in claims()}
+    assert got["f16-model/05/lqr-e20/dgpq-vs-dqn"].statement == (
+        "`flight-05` (a decision every 0.5 s, γ 0.9), potential: LQR, model off by up to 20 %: DGPQ at L_Q 5 "
+        "improves on DQN tuned by its validated study at episodes 91-100 (P(improvement) of each seed's mean there, "
+        "averaged over the draws)")
+    assert got["f16-model/gwh14/cost/halfway"].statement == (
+        "GWH14's formulation (a decision every 0.05 s) at γ 0.99, potential: `cost` (model-free): DGPQ at L_Q 5 is "
+        "past halfway from doing nothing (0) to PD (1) by episodes 91-100")
+    assert got["f16-model/gwh14/none/dgpq-vs-dqn"].needs == ("f16-model-gwh14-none-dgpq-lq5", "f16-model-gwh14-none-dqn")
+    assert got["f16-model/05/lqr-e50/halfway"].needs == tuple(f"f16-model-05-lqr-e50-d{d}-dgpq-lq5" for d in (1, 2, 3)) \
+        + ("f16-model-05-nothing", "f16-model-05-pd")
+    assert all(c.source == "this suite" and c.fmt == "{:.2f}" and c.rule.value == 0.5 and c.rule.higher_is_better
+               for c in got.values())
+    part = m.Ablation("gwh14", m.GWH14_SCALES)
+    assert part.TITLE == ("How much of the model does DGPQ need? The F-16, GWH14's formulation (a decision every "
+                          "0.05 s) at γ 0.99, under potentials from none to a wrong model")
+    assert " at its defaults, each shaped" in part.SUMMARY and "one fixed draw each" in part.SUMMARY
+    assert "(at its defaults and tuned by its own validated studies)" in m.Ablation("05", m.SCALES).SUMMARY
+    assert part.FIRST_SEED == 30 and part.folder == "f16-model-gwh14" and part.SCALES is m.GWH14_SCALES
