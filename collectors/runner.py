@@ -304,9 +304,7 @@ class RunFolder:
         if not path.exists():
             raise RowsMissing(f"{path} is missing: its checkpoint covers {covered} episodes")
         self._drop_unfinished_row()
-        df = self.episodes()
-        kept = df[df.episode <= df.seed.map(episodes)]
-        found = len(kept.drop_duplicates(["seed", "episode"]))
+        df, kept, found = self._covered(episodes)
         if len(kept) != covered or found != covered:
             raise RowsMissing(f"{path} does not hold the {covered} episodes its checkpoint covers once each "
                               f"({covered - found} missing, {len(kept) - found} repeated)")
@@ -406,10 +404,15 @@ class RunFolder:
         if state["episodes_done"] >= latest["episodes_done"]:
             return None
         episodes = dict(zip(seeds, state["collector"]["episode"].tolist()))
+        _, kept, found = self._covered(episodes)
+        return (PREVIOUS, state) if len(kept) == found == sum(episodes.values()) else None
+
+    def _covered(self, episodes: dict) -> tuple:
+        """(episodes.csv, its rows within each seed's first ``episodes[seed]``, how many of those
+        are distinct (seed, episode)s): what a checkpoint covering ``episodes`` needs there once each."""
         df = self.episodes()
         kept = df[df.episode <= df.seed.map(episodes)]
-        held = len(kept) == len(kept.drop_duplicates(["seed", "episode"])) == sum(episodes.values())
-        return (PREVIOUS, state) if held else None
+        return df, kept, len(kept.drop_duplicates(["seed", "episode"]))
 
     def _read_checkpoint(self, path: Path) -> dict:
         if not path.exists():

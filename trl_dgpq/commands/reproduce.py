@@ -90,12 +90,12 @@ def same_config(config: dict) -> dict:
 def experiments(scale: str, only=None) -> dict:
     """{experiment name: resolved config} at ``scale`` (an experiment runs at the scales its sizes
     name: one that only decides claims is left out of the scales too small to decide them)."""
-    unknown = sorted(set(only or ()) - {part.name for part, _ in reproductions()})
+    every = reproductions()
+    unknown = sorted(set(only or ()) - {part.name for part, _ in every})
     if unknown:
-        raise ValueError(f"no part named {', '.join(unknown)}; the parts: "
-                         + ", ".join(part.name for part, _ in reproductions()))
+        raise ValueError(f"no part named {', '.join(unknown)}; the parts: " + ", ".join(part.name for part, _ in every))
     out = {}
-    for d, analysis in reproductions(only):
+    for d, analysis in (every if not only else [(p, a) for p, a in every if p.name in only]):
         for name, settings, *own in analysis.REPRODUCE:
             sizes = (own[0] if own else analysis.SCALES).get(scale)
             if sizes is None:  # an experiment of some scales only
