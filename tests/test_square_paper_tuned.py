@@ -26,7 +26,7 @@ def run_of(name, steps, terminated=True, budget=10_000):
             for s in range(10, 30) for e in range(1, 101)]
     df = pd.DataFrame(rows)
     df["env_steps"] = df.groupby("seed")["steps"].cumsum()
-    df = df[df.env_steps <= budget].reset_index(drop=True)
+    df = df[df.env_steps - df.steps < budget].reset_index(drop=True)   # the runner's: episodes begun within it
     config = {"run": {"env": "square", "agent": "dgpq", "preset": "paper-validated", "env_steps": budget},
               "env": {"reward": "paper", "max_steps": 20_000}, "agent": {}}
     return Run(None, df, config)
@@ -56,9 +56,9 @@ def test_seeds_without_an_episode_three_are_censored_not_dropped():
 
 
 def test_episode_one_cut_before_the_goal_is_censored():
-    cut = {"square-pt-dgpq": run_of("d", lambda s, e: 10_000 if e == 1 else 18, terminated=False)}
+    cut = {"square-pt-dgpq": run_of("d", lambda s, e: 20_000 if e == 1 else 18, terminated=False, budget=30_000)}
     got = m.episode_one("square-pt-dgpq")(cut)
-    assert got.censored == "20 of 20 seeds cut before the goal" and got.top == float("inf")
+    assert got.censored == "20 of 20 seeds capped at 20000 steps" and got.top == float("inf")
     assert judge(m.CLAIMS[0], cut, "report").verdict == BELOW          # at least 10,000: beyond 3 x 100 either way
 
 

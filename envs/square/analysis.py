@@ -49,27 +49,35 @@ REPRODUCE = [
 
 
 def episode_one(name: str):
-    """The claim's measure: each seed's steps in episode 1 (censored where a seed hit the cap: its
-    true first episode is longer)."""
+    """The claim's measure: each seed's steps in episode 1, censored where a seed was cut by the cap
+    before the goal (its true first episode is longer; a budget ends a seed only between episodes)."""
     def measure(runs):
         from trl_dgpq.analysis.claims import seeds_interval
         run = runs[name]
         first = run.df[run.df.episode == 1].set_index("seed")
         steps, cap = first["steps"], run.config["env"]["max_steps"]
         got = seeds_interval(steps)
-        # cut by the cap: at it without reaching the goal (a goal reached at the cap's step is no cut)
-        capped = int(((steps >= cap) & ~first.get("terminated", pd.Series(False, index=first.index))
-                      .astype(bool)).sum())
+        # a goal reached at the cap's step is no cut; without the column, an episode at the cap is one
+        reached = first["terminated"].astype(bool) if "terminated" in first else steps < cap
+        capped = int((~reached).sum())
         return replace(got, censored=f"{capped} of {len(steps)} seeds capped at {cap} steps") if capped else got
     return measure
 
 
 def later_episodes(name: str, first: int = 3):
-    """The claim's measure: each seed's median steps over its episodes ``first`` onwards."""
+    """The claim's measure: each seed's median steps over its episodes ``first`` onwards; censored
+    where a seed ran none of them (under an env-step budget its first episodes can take it all: its
+    later ones are unknown, so the interval says nothing above its low end)."""
     def measure(runs):
         from trl_dgpq.analysis.claims import seeds_interval
         df = runs[name].df
-        return seeds_interval(df[df.episode >= first].groupby("seed")["steps"].median())
+        medians = df[df.episode >= first].groupby("seed")["steps"].median()
+        missing = df.seed.nunique() - len(medians)
+        if not len(medians):
+            raise ValueError(f"{name}: no seed ran an episode {first} within the budget")
+        got = seeds_interval(medians)
+        return replace(got, censored=f"{missing} of {df.seed.nunique()} seeds ran no episode {first} within the "
+                                     "budget") if missing else got
     return measure
 
 

@@ -18,7 +18,6 @@ fewer env steps than DQN) above 0.5, a seed that never reached it counted at the
 """
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +25,7 @@ import pandas as pd
 
 from trl_dgpq.analysis import ms_per_seed_step, steps_to_threshold
 
-from .analysis import NO_CAP, THRESHOLD
+from .analysis import NO_CAP, THRESHOLD, episode_one, later_episodes
 
 BUDGET = 10_000
 FIRST_SEED = 30         # 10-19 ran `paper` uncapped (square-paper-nocap), which a validation may keep
@@ -38,35 +37,6 @@ SCALES = {"smoke": (1, 3, 600), "quick": (4, 20, 2000), "full": (20, 100, BUDGET
 LEARNERS = {"square-pt-dgpq": "dgpq", "square-pt-dqn": "dqn"}
 REPRODUCE = [(name, dict(agent=agent, preset="paper-validated", max_steps=NO_CAP)) for name, agent in LEARNERS.items()]
 REPRODUCE.append(("square-pt-random", dict(agent="random", preset="paper", max_steps=NO_CAP)))
-
-
-def episode_one(name: str):
-    """Each seed's steps in episode 1, censored where it did not reach the goal (cut by the cap: its
-    true first episode is longer; a budget ends a seed only between episodes)."""
-    def measure(runs):
-        from trl_dgpq.analysis.claims import seeds_interval
-        first = runs[name].df[lambda d: d.episode == 1]
-        got = seeds_interval(first["steps"])
-        cut = int((~first["terminated"].astype(bool)).sum())
-        return replace(got, censored=f"{cut} of {len(first)} seeds cut before the goal") if cut else got
-    return measure
-
-
-def later_episodes(name: str, first: int = 3):
-    """Each seed's median steps over its episodes ``first`` on; censored where a seed ran none of them
-    within the budget (its first episodes took it all: its later ones are unknown, so the interval
-    says nothing above its low end)."""
-    def measure(runs):
-        from trl_dgpq.analysis.claims import seeds_interval
-        df = runs[name].df
-        medians = df[df.episode >= first].groupby("seed")["steps"].median()
-        missing = df.seed.nunique() - len(medians)
-        if not len(medians):
-            raise ValueError(f"{name}: no seed ran an episode {first} within the budget")
-        got = seeds_interval(medians)
-        return replace(got, censored=f"{missing} of {df.seed.nunique()} seeds ran no episode {first} within the "
-                                     "budget") if missing else got
-    return measure
 
 
 def to_threshold(df: pd.DataFrame, budget: int) -> np.ndarray:
