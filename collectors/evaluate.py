@@ -8,7 +8,9 @@ streams are keyed for evaluation (``SeedBatchedEnv.for_evaluation``): seed i's
 evaluation episodes are the same in any batch and share no random numbers with its
 training. The agent acts by ``exploit`` (DGPQ: Q̂'s greedy action; DQN: ε = 0; DDPG:
 no OU noise) and ``observe`` is never called. The rows, one per episode as in
-``episodes.csv``, go to ``eval.csv`` beside the run's ``episodes.csv``.
+``episodes.csv``, go to ``eval.csv`` beside the run's ``episodes.csv``; a Ctrl-C keeps the
+episodes already finished in ``eval.partial.csv`` (never in eval.csv, which is only ever a whole
+evaluation).
 """
 from __future__ import annotations
 
@@ -25,6 +27,15 @@ from .online import OnlineCollector, frame
 from .runner import CHECKPOINT, RunError, RunFolder, atomic_write
 
 EVAL = "eval.csv"
+PARTIAL = "eval.partial.csv"
+
+
+class EvaluationInterrupted(KeyboardInterrupt):
+    """Ctrl-C during ``evaluate``: the episodes finished by then are in ``path`` (None: none was)."""
+
+    def __init__(self, path: Optional[Path], episodes: int):
+        super().__init__(f"{episodes} evaluation episodes kept in {path}" if path else "no evaluation episode finished")
+        self.path, self.episodes = path, episodes
 
 
 class Frozen:
@@ -88,30 +99,44 @@ def restore(job: Path):
     return config, env, agent, state
 
 
-def evaluate_job(job: Path, episodes: int, progress: bool = False) -> pd.DataFrame:
-    """``episodes`` evaluation episodes per seed of the run in ``job``. The checkpoint is only
-    read (tests/test_evaluate.py checks its bytes are unchanged)."""
+def evaluate_job(job: Path, episodes: int, progress: bool = False, on_rows=None) -> pd.DataFrame:
+    """``episodes`` evaluation episodes per seed of the run in ``job`` (``on_rows`` gets each
+    step's finished episodes' rows as they end). The checkpoint is only read
+    (tests/test_evaluate.py checks its bytes are unchanged)."""
     config, env, agent, _ = restore(job)
     env.for_evaluation()
     return OnlineCollector(env, Frozen(agent), episodes, progress=progress,
-                           desc=f"evaluate {describe(config)}").run()
+                           desc=f"evaluate {describe(config)}").run(on_rows=on_rows)
+
+
+def write_csv(df: pd.DataFrame, path: Path) -> None:
+    buf = io.StringIO()
+    df.to_csv(buf, index=False)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, lambda f: f.write(buf.getvalue().encode()))
 
 
 def evaluate(folder, episodes: int = 10, progress: bool = False, out=None) -> pd.DataFrame:
     """Evaluate every job of the run in ``folder``; writes ``eval.csv`` into ``out`` (default: the
-    run's folder; another for a run one may not write into) and returns it."""
+    run's folder; another for a run one may not write into) and returns it. Ctrl-C raises
+    ``EvaluationInterrupted`` after writing the episodes finished so far to ``eval.partial.csv``."""
     folder = Path(folder)
     target = Path(out) if out is not None else folder
     if int(episodes) != episodes or episodes < 1:
         raise ValueError(f"episodes must be a positive integer, got {episodes}")
-    df = pd.concat([evaluate_job(j, int(episodes), progress) for j in jobs(folder)], ignore_index=True)
+    finished = []
+    try:
+        df = pd.concat([evaluate_job(j, int(episodes), progress, finished.extend) for j in jobs(folder)],
+                       ignore_index=True)
+    except KeyboardInterrupt:
+        if finished:
+            write_csv(frame(finished), target / PARTIAL)
+        raise EvaluationInterrupted(target / PARTIAL if finished else None, len(finished)) from None
     df = df.sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
-    buf = io.StringIO()
-    df.to_csv(buf, index=False)
-    target.mkdir(parents=True, exist_ok=True)
-    atomic_write(target / EVAL, lambda f: f.write(buf.getvalue().encode()))
+    write_csv(df, target / EVAL)
+    (target / PARTIAL).unlink(missing_ok=True)   # a whole evaluation replaces an interrupted one
     return df
 
 
-__all__ = ["EVAL", "Frozen", "episode_steps", "evaluate", "evaluate_job", "frame", "job_folders", "jobs",
+__all__ = ["EVAL", "EvaluationInterrupted", "Frozen", "PARTIAL", "episode_steps", "evaluate", "evaluate_job", "frame", "job_folders", "jobs",
            "restore"]

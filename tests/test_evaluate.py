@@ -246,3 +246,34 @@ def test_push_animation_shows_the_learner_above_the_oracle(tmp_path):
     assert top.std() > 10 and bottom.std() > 10                        # both rendered, not blank
     red = (rgb[..., 0] > 150) & (rgb[..., 1] < 60) & (rgb[..., 2] < 60)
     assert red[:h].sum() > 50 and red[h:].sum() > 50                   # the goal's ring kept its red
+
+
+def test_ctrl_c_mid_evaluation_keeps_the_finished_episodes_apart_from_eval_csv(tmp_path, capsys, monkeypatch):
+    """Seeds step in lock-step, so a Ctrl-C at batched step m has finished each seed's episodes whose
+    running sum of steps is below m: those rows (as the whole evaluation gives them) go to
+    eval.partial.csv, eval.csv is not written, the command names the file; a whole evaluation later
+    removes it."""
+    from trl_dgpq.collectors import evaluate as module
+    run = trained(tmp_path, "--env", "corridor", "--agent", "random", "--seeds", "0,1", "--episodes", 2)
+    whole = evaluate(run, episodes=4, out=tmp_path / "whole")
+    ends = whole.groupby("seed")["steps"].cumsum()
+    m = int(ends.sort_values().iloc[2]) + 1          # past three episodes' ends, before the fourth's
+    calls, act = [], module.Frozen.act
+
+    def stopped(self, td):
+        calls.append(1)
+        if len(calls) == m:
+            raise KeyboardInterrupt
+        return act(self, td)
+    monkeypatch.setattr(module.Frozen, "act", stopped)
+    capsys.readouterr()
+    assert evaluate_command.main([str(run), "--episodes", "4", "--no-progress"]) == 130
+    partial = pd.read_csv(run / "eval.partial.csv")
+    timing = ["wall_s", "cpu_s", "us_per_step"]
+    pd.testing.assert_frame_equal(partial.drop(columns=timing), whole[ends < m].reset_index(drop=True)
+                                  .drop(columns=timing), check_exact=False)
+    assert len(partial) == 3 and not (run / "eval.csv").exists()
+    assert capsys.readouterr().err.endswith(f"; the 3 episodes it finished are in {run / 'eval.partial.csv'}\n")
+    monkeypatch.setattr(module.Frozen, "act", act)
+    evaluate(run, episodes=4)
+    assert (run / "eval.csv").exists() and not (run / "eval.partial.csv").exists()

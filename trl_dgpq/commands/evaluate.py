@@ -8,7 +8,7 @@ none is an episode it trained on) with its learned agent acting greedily: DGPQ b
 (ties by its tie stream), DQN with ε = 0, DDPG without OU noise; scripted and random
 agents act as in training. Writes RUN/eval.csv (one row per episode, the columns of
 episodes.csv) and prints the evaluation's mean of the domain's measure beside the last
-training episodes'. The checkpoint is only read: its bytes are unchanged.
+training episodes'. Ctrl-C keeps the episodes finished so far in RUN/eval.partial.csv. The checkpoint is only read: its bytes are unchanged.
 """
 from __future__ import annotations
 
@@ -44,11 +44,13 @@ def run(args) -> int:
         out = None if args.out is None else Path(args.out) / (folder.name if len(args.runs) > 1 else "")
         try:
             df = evaluate(folder, args.episodes, progress=not args.no_progress, out=out)
-        except KeyboardInterrupt:   # eval.csv is written whole or not at all: say which runs have one
+        except KeyboardInterrupt as stop:   # eval.csv is written whole or not at all: say which runs have one
             left = [str(f) for f in args.runs[len(written):]]
+            kept = getattr(stop, "path", None)
             print(f"{prog('evaluate')}: interrupted while evaluating {folder}: "
                   + (f"wrote eval.csv for {', '.join(written)}; " if written else "")
-                  + f"no eval.csv written for {', '.join(left)}", file=sys.stderr)
+                  + f"no eval.csv written for {', '.join(left)}"
+                  + (f"; the {stop.episodes} episodes it finished are in {kept}" if kept else ""), file=sys.stderr)
             return 130
         written.append(str(folder))
         trained = load_run(folder)
