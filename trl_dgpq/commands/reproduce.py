@@ -27,7 +27,9 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
+import json
 import os
+import re
 import sys
 import time
 from collections import Counter
@@ -87,9 +89,11 @@ def same_config(config: dict) -> dict:
     return {**config, "run": to_dict(run), "env": to_dict(env), "agent": to_dict(agent)}
 
 
-def experiments(scale: str, only=None) -> dict:
-    """{experiment name: resolved config} at ``scale`` (an experiment runs at the scales its sizes
-    name: one that only decides claims is left out of the scales too small to decide them)."""
+def plan_settings(scale: str, only=None) -> dict:
+    """{experiment name: its settings as given} at ``scale`` (env, agent, preset, seeds, episodes,
+    env_steps and the experiment's own settings): what ``experiments`` resolves and ``--sweep-file``
+    writes. An experiment runs at the scales its sizes name: one that only decides claims is left out
+    of the scales too small to decide them."""
     every = reproductions()
     unknown = sorted(set(only or ()) - {part.name for part, _ in every})
     if unknown:
@@ -102,10 +106,56 @@ def experiments(scale: str, only=None) -> dict:
                 continue
             seeds, episodes, *budget = sizes   # (seeds, episodes[, env steps per seed])
             first = getattr(analysis, "FIRST_SEED", FIRST_REPORTING)   # past the seeds development explored
-            seeds = list(range(first, first + seeds))
-            out[name] = resolve_config({"env": d.examples()[0], **settings, "seeds": seeds, "episodes": episodes,
-                                        "env_steps": budget[0] if budget else 0})
+            out[name] = {"env": d.examples()[0], **settings, "seeds": list(range(first, first + seeds)),
+                         "episodes": episodes, "env_steps": budget[0] if budget else 0}
     return out
+
+
+def experiments(scale: str, only=None) -> dict:
+    """{experiment name: resolved config} at ``scale`` (``plan_settings`` resolved)."""
+    return {name: resolve_config(settings) for name, settings in plan_settings(scale, only).items()}
+
+
+def toml_value(value) -> str:
+    """A setting as TOML writes it (strings, numbers, booleans and lists of them are all a plan holds)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)      # a JSON string is a TOML basic string
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    raise TypeError(f"a sweep file cannot hold {value!r}")
+
+
+def sweep_file(settings: dict, command: str) -> str:
+    """The planned experiments as a sweep file (``trl-dgpq sweep FILE``): each experiment's run
+    settings at the top, its env and agent settings under ``[experiment.set]``; the same configs as
+    the plan (tests/test_reproduce.py reads it back)."""
+    from trl_dgpq.collectors.experiment import RunConfig
+    from trl_dgpq.config import leaves
+    run_keys = {leaf.key for leaf in leaves(RunConfig)}
+    def toml_key(k: str) -> str:   # a dotted path is one key, not nested tables
+        return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k)
+    lines = [f"# Written by `{command}`:", "# that plan as a sweep, the same configs (`trl-dgpq sweep THIS_FILE --out "
+             "DIR` runs it;", "# REPORT.md and the claims come from reproduce, which runs the same experiments)."]
+    for name, given in settings.items():
+        lines += ["", "[[experiment]]", f"name = {toml_value(name)}"]
+        rest = {}
+        for key, value in given.items():
+            if key == "seeds":         # a range as "A-B"; one seed as a list ("N" would be N seeds)
+                seeds = list(value)
+                span = seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 1
+                lines.append(f"seeds = {toml_value(f'{seeds[0]}-{seeds[-1]}' if span else seeds)}")
+            elif key in run_keys:
+                lines.append(f"{key} = {toml_value(value)}")
+            else:
+                rest[key] = value
+        if rest:
+            lines.append("[experiment.set]")
+            lines += [f"{toml_key(k)} = {toml_value(v)}" for k, v in rest.items()]
+    return "\n".join(lines) + "\n"
 
 
 def in_order(jobs: list, workers: int) -> list:
@@ -436,6 +486,9 @@ def main(argv=None) -> int:
     p.add_argument("--plan", action="store_true",
                    help="run nothing: list the planned experiments with their estimated time (from the published "
                         "runs like each) and the wall time on 2, 16, 64 and 256 cores")
+    p.add_argument("--sweep-file", default=None, metavar="FILE",
+                   help="run nothing: write the planned experiments (those --experiments picks, if given) as a sweep "
+                        "file for `trl-dgpq sweep`, the same configs")
     p.add_argument("--report", action="store_true",
                    help="run nothing: write REPORT.md, claims.md and results.csv from what has finished so far "
                         "(a domain's section once all its experiments have)")
@@ -452,6 +505,15 @@ def main(argv=None) -> int:
         now = chosen(planned, args.experiments)
         if args.experiments and args.report:
             raise sweep.SweepError("--report writes the report of every finished experiment: drop --experiments")
+        if args.sweep_file:
+            given = plan_settings(args.scale, args.only)
+            command = " ".join([prog("reproduce"), "--scale", args.scale]
+                               + (["--only", *args.only] if args.only else [])
+                               + (["--experiments", *args.experiments] if args.experiments else [])
+                               + ["--sweep-file", args.sweep_file])
+            Path(args.sweep_file).write_text(sweep_file({n: given[n] for n in now}, command))
+            print(f"wrote {args.sweep_file}: {count(len(now), 'experiment')}")
+            return 0
         if args.plan:
             print(plan_text({n: planned[n] for n in now}, Path(__file__).resolve().parents[2] / "results" / "report"),
                   end="")

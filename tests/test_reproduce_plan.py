@@ -1,0 +1,71 @@
+"""reproduce's plan written as a sweep file (``--sweep-file``): the same configs, read back by the
+sweep; the parts' committed sweep files are today's plan."""
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from trl_dgpq.collectors import sweep
+from trl_dgpq.commands import reproduce
+
+ROOT = Path(__file__).resolve().parent.parent
+# the parts reproduced apart, each also a sweep file in configs/ (issue: "each experiment as a part
+# of reproduce and as a sweep file")
+COMMITTED = {"f16-model": "configs/f16-model.toml", "f16-model-gwh14": "configs/f16-model-gwh14.toml",
+             "square-paper-tuned": "configs/square-paper-tuned.toml"}
+
+
+@pytest.mark.parametrize("scale", reproduce.SCALES)
+def test_every_scales_plan_as_a_sweep_file_is_the_same_configs(tmp_path, scale):
+    path = tmp_path / "plan.toml"
+    path.write_text(reproduce.sweep_file(reproduce.plan_settings(scale), "cmd"))
+    assert sweep.read_sweep_file(path) == reproduce.experiments(scale)
+
+
+def test_seeds_a_dotted_setting_and_each_kind_of_value_survive_the_file(tmp_path):
+    """One seed is written as a list ("30" would be seeds 0-29), a range as "A-B", other seeds as a
+    list; a dotted path is one quoted key (bare, TOML would nest it)."""
+    given = {"a": dict(env="square", agent="dgpq", seeds=[30], episodes=2, env_steps=0,
+                       **{"env.reward": "paper", "agent.sigma_tol2": 0.0025, "agent.gp": "exact"}),
+             "b": dict(env="square", agent="dqn", seeds=[3, 4, 5], episodes=2, env_steps=100, hidden=[8, 8],
+                       learning_starts=0),
+             "c": dict(env="square", agent="random", seeds=[5, 9], episodes=1, env_steps=0, checkpoint_every=7)}
+    text = reproduce.sweep_file(given, "cmd")
+    data = tomllib.loads(text)["experiment"]
+    assert [e["seeds"] for e in data] == [[30], "3-5", [5, 9]]
+    assert data[0]["set"] == {"env.reward": "paper", "agent.sigma_tol2": 0.0025, "agent.gp": "exact"}
+    assert data[1]["set"] == {"hidden": [8, 8], "learning_starts": 0} and data[2]["checkpoint_every"] == 7
+    assert '"env.reward" = "paper"' in text and text.startswith("# Written by `cmd`")
+    (tmp_path / "s.toml").write_text(text)
+    resolved = sweep.read_sweep_file(tmp_path / "s.toml")
+    assert resolved == {name: reproduce.resolve_config(s) for name, s in given.items()}
+    assert resolved["a"]["run"]["seeds"] == [30] and resolved["a"]["env"]["reward"] == "paper"
+    assert [reproduce.toml_value(v) for v in (True, False, 3, 0.5, "a\"b", (1, 2))] == \
+        ["true", "false", "3", "0.5", '"a\\"b"', "[1, 2]"]
+    with pytest.raises(TypeError, match="cannot hold"):
+        reproduce.toml_value(None)
+
+
+@pytest.mark.parametrize("part", COMMITTED)
+def test_each_part_apart_is_committed_as_the_sweep_file_its_plan_writes_today(part, capsys):
+    path = ROOT / COMMITTED[part]
+    if part not in {p.name for p, _ in reproduce.reproductions()}:
+        pytest.skip(f"{part} is not registered yet")
+    assert path.is_file(), f"write it: trl-dgpq reproduce --scale report --only {part} --sweep-file {COMMITTED[part]}"
+    text = path.read_text()
+    assert sweep.read_sweep_file(path) == reproduce.experiments("report", [part])
+    assert text.split("\n", 1)[1] == reproduce.sweep_file(reproduce.plan_settings("report", [part]), "x").split("\n", 1)[1]
+
+
+def test_the_command_writes_the_file_and_runs_nothing(tmp_path, capsys):
+    out = tmp_path / "never"
+    path = tmp_path / "f16.toml"
+    assert reproduce.main(["--scale", "smoke", "--only", "f16", "--experiments", "f16-dgpq-*", "--out", str(out),
+                           "--sweep-file", str(path)]) == 0
+    assert not out.exists()
+    every = reproduce.experiments("smoke", ["f16"])
+    picked = {n: c for n, c in every.items() if n.startswith("f16-dgpq-")}
+    assert picked and len(picked) < len(every) and sweep.read_sweep_file(path) == picked
+    assert capsys.readouterr().out == f"wrote {path}: {len(picked)} experiments\n"
+    assert path.read_text().startswith(f"# Written by `{reproduce.prog('reproduce')} --scale smoke --only f16 "
+                                       f"--experiments f16-dgpq-* --sweep-file {path}`")
