@@ -36,7 +36,7 @@ def test_the_claims_measure_what_they_say():
     runs = {"square-pt-dgpq": run_of("d", lambda s, e: 120 if e == 1 else 18),      # meets the threshold at once
             "square-pt-dqn": run_of("q", lambda s, e: 400 if e == 1 else 40 if e < 50 else 20),
             "square-pt-random": run_of("r", lambda s, e: 500)}
-    got = {c.key: judge(c, runs, "report") for c in m.CLAIMS}
+    got = {c.key: judge(c, runs, "report") for c in m.declared_claims()}
     assert got["square-paper-tuned/episode-1"].verdict == AGREES                   # 120 within 3x of 100
     assert got["square-paper-tuned/episodes-3+"].verdict == AGREES                 # 18 within 1.5x of 20
     assert got["square-paper-tuned/dgpq-vs-dqn"].verdict == MET
@@ -44,9 +44,9 @@ def test_the_claims_measure_what_they_say():
     assert m.to_threshold(runs["square-pt-dgpq"].df, 10_000).tolist() == [300.0] * 20
     slow = {**runs, "square-pt-dgpq": run_of("d", lambda s, e: 400 if e == 1 else 40)}
     assert m.to_threshold(slow["square-pt-dgpq"].df, 10_000).tolist() == [10_000.0] * 20   # never: the budget
-    assert judge(m.CLAIMS[1], slow, "report").verdict == BELOW
+    assert judge(m.declared_claims()[1], slow, "report").verdict == BELOW
     wander = {**runs, "square-pt-dgpq": run_of("d", lambda s, e: 500)}
-    assert judge(m.CLAIMS[1], wander, "report").verdict == NO_LEARNING
+    assert judge(m.declared_claims()[1], wander, "report").verdict == NO_LEARNING
 
 
 def test_seeds_without_an_episode_three_are_censored_not_dropped():
@@ -59,13 +59,29 @@ def test_episode_one_cut_before_the_goal_is_censored():
     cut = {"square-pt-dgpq": run_of("d", lambda s, e: 20_000 if e == 1 else 18, terminated=False, budget=30_000)}
     got = m.episode_one("square-pt-dgpq")(cut)
     assert got.censored == "20 of 20 seeds capped at 20000 steps" and got.top == float("inf")
-    assert judge(m.CLAIMS[0], cut, "report").verdict == BELOW          # at least 10,000: beyond 3 x 100 either way
+    assert judge(m.declared_claims()[0], cut, "report").verdict == BELOW          # at least 10,000: beyond 3 x 100 either way
 
 
 def test_the_section_names_each_run_and_its_measures(tmp_path):
+    """The whole section by hand. DGPQ: 100 episodes in 120 + 99 x 18 = 1,902 steps at 0.01 s each, 0.53 ms
+    per seed-step; DQN: 400 + 99 x 40 = 4,360 steps, 0.23 ms, never at the threshold (the budget);
+    random: 20 episodes of 500 begin within the budget, 0.2 s over 10,000 steps, 0.02 ms, its first
+    episode cut by the cap in every seed."""
+    from trl_dgpq.analysis.claims import Judged
     runs = {"square-pt-dgpq": run_of("d", lambda s, e: 120 if e == 1 else 18),
             "square-pt-dqn": run_of("q", lambda s, e: 400 if e == 1 else 40),
-            "square-pt-random": run_of("r", lambda s, e: 500)}
-    text = m.reproduce_section(runs, tmp_path, "label", "title", [])
-    assert "| dgpq | paper-validated | 120 | 18.0 | 20 of 20 | 300 | " in text
-    assert "| dqn | paper-validated | 400 | 40.0 | 0 of 20 | 10,000 | " in text
+            "square-pt-random": run_of("r", lambda s, e: 500, terminated=False)}
+    runs["square-pt-random"].config["run"]["preset"] = "paper"
+    claim = m.declared_claims()[0]
+    text = m.reproduce_section(runs, tmp_path, "label", "title", [Judged(claim, "agrees", "ours", ())])
+    assert text == (
+        f"## {m.TITLE}\n\nlabel\n\n- GWH14: {claim.statement} ({claim.rule.text()}). Ours: ours -- **agrees**.\n\n"
+        "| run | preset | episode 1, steps (IQM [95 % CI]) | median steps of episodes 3+ (IQM over seeds) "
+        "| seeds at the threshold within the budget | env steps to the threshold (IQM; never: the budget) "
+        "| ms per seed-step |\n|---|---|---|---|---|---|---|\n"
+        "| dgpq | paper-validated | 120 | 18.0 | 20 of 20 | 300 | 0.53 |\n"
+        "| dqn | paper-validated | 400 | 40.0 | 0 of 20 | 10,000 | 0.23 |\n"
+        "| random | paper | 500 (20 of 20 seeds capped at 20000 steps) | 500.0 | 0 of 20 | 10,000 | 0.02 |\n")
+    assert m.budget_of(runs["square-pt-dgpq"]) == 10_000
+    runs["square-pt-dgpq"].config["run"]["env_steps"] = 0            # no budget recorded: the part's own
+    assert m.budget_of(runs["square-pt-dgpq"]) == m.BUDGET == 10_000
