@@ -10,14 +10,18 @@ from trl_dgpq.envs.square import paper_tuned as m
 
 
 def test_the_plan_is_each_learners_validated_preset_uncapped_within_the_budget():
-    """(Registered in analysis.APART once both studies have written ``paper-validated``: until then
-    the plan is read as declared.)"""
-    assert [name for name, *_ in m.REPRODUCE] == ["square-pt-dgpq", "square-pt-dqn", "square-pt-random"]
-    settings = {name: s for name, s in m.REPRODUCE}
-    assert settings["square-pt-dgpq"] == dict(agent="dgpq", preset="paper-validated", max_steps=20_000)
-    assert settings["square-pt-dqn"] == dict(agent="dqn", preset="paper-validated", max_steps=20_000)
-    assert settings["square-pt-random"] == dict(agent="random", preset="paper", max_steps=20_000)
-    assert m.SCALES["report"] == (20, 100, 10_000) and m.FIRST_SEED == 30
+    """The part as reproduce plans it: apart from the square's own experiments, seeds 30-49, 100
+    episodes within 10,000 steps, each learner's validated preset, episodes capped at 20,000."""
+    assert not any(n.startswith("square-pt") for n in reproduce.experiments("report", ["square"]))
+    planned = reproduce.plan_settings("report", ["square-paper-tuned"])
+    common = dict(env="square", seeds=list(range(30, 50)), episodes=100, env_steps=10_000, max_steps=20_000)
+    assert planned == {"square-pt-dgpq": dict(common, agent="dgpq", preset="paper-validated"),
+                       "square-pt-dqn": dict(common, agent="dqn", preset="paper-validated"),
+                       "square-pt-random": dict(common, agent="random", preset="paper")}
+    configs = reproduce.experiments("report", ["square-paper-tuned"])
+    for name in ("square-pt-dgpq", "square-pt-dqn"):     # the study's preset itself: its reward and cap
+        assert configs[name]["env"]["reward"] == "paper" and configs[name]["env"]["max_steps"] == 20_000
+    assert reproduce.plan_settings("smoke", ["square-paper-tuned"])["square-pt-dqn"]["seeds"] == [30]
 
 
 def run_of(name, steps, terminated=True, budget=10_000):

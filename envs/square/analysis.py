@@ -31,6 +31,8 @@ SUMMARY = ("DGPQ on GWH14's own reward (-1 per step, `paper`), on the seed repor
 # (seeds, episodes) at each scale; an experiment may name its own as a third item
 SCALES = {"smoke": (1, 3), "quick": (6, 50), "full": (10, 100), "report": (10, 100)}
 NO_CAP = 20_000   # steps: 4x the seed report's 5,000, far past GWH14's ~100
+# an experiment of this domain reproduced apart (its own --only name): the module holding its plan
+APART = {"square-paper-tuned": "paper_tuned"}
 REPRODUCE = [
     ("square-shaped", dict(agent="dgpq", preset="shaped")),
     ("square-report", dict(agent="dgpq", preset="report")),

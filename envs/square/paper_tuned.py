@@ -1,7 +1,6 @@
 """The square on GWH14's own reward, each learner tuned alike and validated, reproduced apart
-(``reproduce --only square-paper-tuned`` once ``APART`` in analysis.py names it: that waits for
-both studies to have written the presets ``paper-validated``; the plan and claims are fixed here
-before them).
+(``reproduce --only square-paper-tuned``; ``APART`` in analysis.py). The plan and claims were
+fixed here before either study ran, and registered once both had written ``paper-validated``.
 
 GWH14's MDP pays -1 per step (``paper``). DGPQ and DQN each take the preset ``paper-validated``:
 the winner of a 30-trial Optuna study from the ``paper`` preset (seeds 1000-1004, a 10,000-step
