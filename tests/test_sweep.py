@@ -276,16 +276,16 @@ def test_reproduce_writes_every_figure_and_the_report(tmp_path):
 
 def test_reproduce_on_one_worker_runs_domain_by_domain_the_smallest_first(tmp_path):
     """At the report scale push plans 3 x 10 seeds x 100 episodes x 50 steps = 150,000 seed-steps
-    (at most: the step caps), gym 10 seeds x its budgets, and the square, whose runs for GWH14's
-    claims are capped at 20,000 steps, 10 x 100 x 20,000 for one of them alone: push's jobs run
-    first, then gym's, each domain's jobs together; on two workers DDPG and TD3 (the costliest per
-    step) go first."""
+    (at most: the step caps), square-paper-tuned 3 x 20 seeds x its 10,000-step budget = 600,000, gym
+    10 seeds x its budgets, and the square, whose runs for GWH14's claims are capped at 20,000 steps,
+    10 x 100 x 20,000 for one of them alone: push's jobs run first, then square-paper-tuned's, then
+    gym's, each part's jobs together; on two workers DDPG and TD3 (the costliest per step) go first."""
     planned = reproduce.experiments("report")
     jobs = sweep.plan(planned, tmp_path / "r", None)
     domains = {name: d.name for d, a in reproduce.reproductions() for name, *_ in a.REPRODUCE}
     ordered = [domains[j.experiment] for j in reproduce.in_order(jobs, 1)]
     runs = [d for k, d in enumerate(ordered) if k == 0 or d != ordered[k - 1]]
-    assert runs[:2] == ["push", "gym"] and len(runs) == len(set(runs)) == 7     # each part in one stretch
+    assert runs[:3] == ["push", "square-paper-tuned", "gym"] and len(runs) == len(set(runs)) == 8   # one stretch each
     assert sorted(reproduce.in_order(jobs, 1), key=id) == sorted(jobs, key=id)     # every job, once
     liq = [j.experiment for j in reproduce.in_order(jobs, 1) if domains[j.experiment] == "liquidation"]
     assert liq[0] == "liq-td3-shortfall"                  # within a domain the shortest first (3,000 episodes)

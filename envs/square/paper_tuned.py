@@ -30,8 +30,8 @@ BUDGET = 10_000
 FIRST_SEED = 30         # 10-19 ran `paper` uncapped (square-paper-nocap), which a validation may keep
 TITLE = "The square on GWH14's own reward, DGPQ and DQN tuned alike and validated"
 SUMMARY = ("DGPQ and DQN on GWH14's reward (-1 per step), each with the preset its own 30-trial study chose and "
-           "validated on other seeds, 20 seeds within a 10,000-step budget, episode 1 uncapped; a random walk as "
-           "the trivial baseline.")
+           "validated on other seeds, 20 seeds within a 10,000-step budget, episodes capped only at 20,000 steps; "
+           "a random walk as the trivial baseline.")
 SCALES = {"smoke": (1, 3, 600), "quick": (4, 20, 2000), "full": (20, 100, BUDGET), "report": (20, 100, BUDGET)}
 LEARNERS = {"square-pt-dgpq": "dgpq", "square-pt-dqn": "dqn"}
 REPRODUCE = [(name, dict(agent=agent, preset="paper-validated", max_steps=NO_CAP)) for name, agent in LEARNERS.items()]

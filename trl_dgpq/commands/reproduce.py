@@ -180,8 +180,11 @@ def scale_label(scale: str, only=None) -> str:
     sizes = []
     for d, a in reproductions(only):
         seeds, length, *budget = a.SCALES[scale]
-        sizes.append(f"{d.name} {count(seeds, 'seed')} x " + (f"{budget[0]} env steps" if budget
-                                                               else count(length, "episode")))
+        if budget:   # env steps per seed: a number, or a range as text ("20,000-120,000")
+            length = f"{budget[0]:,} env steps" if isinstance(budget[0], int) else f"{budget[0]} env steps"
+        else:
+            length = count(length, "episode")
+        sizes.append(f"{d.name} {count(seeds, 'seed')} x {length}")
     return f"*Scale: {scale}* -- {note}: " + ", ".join(sizes) + " (some agents fewer: see the tables)."
 
 
