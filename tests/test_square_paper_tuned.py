@@ -76,16 +76,39 @@ def test_the_section_names_each_run_and_its_measures(tmp_path):
             "square-pt-dqn": run_of("q", lambda s, e: 400 if e == 1 else 40),
             "square-pt-random": run_of("r", lambda s, e: 500, terminated=False)}
     runs["square-pt-random"].config["run"]["preset"] = "paper"
-    claim = m.declared_claims()[0]
-    text = m.reproduce_section(runs, tmp_path, "label", "title", [Judged(claim, "agrees", "ours", ())])
+    claims = m.declared_claims()
+    text = m.reproduce_section(runs, tmp_path, "label", "title", [Judged(c, "agrees", "ours", ()) for c in claims[:2]])
     assert text == (
-        f"## {m.TITLE}\n\nlabel\n\n- GWH14: {claim.statement} ({claim.rule.text()}). Ours: ours -- **agrees**.\n\n"
+        f"## {m.TITLE}\n\nlabel\n\n" + "\n".join(f"- GWH14: {c.statement} ({c.rule.text()}). Ours: ours -- **agrees**."
+                                                  for c in claims[:2]) + "\n\n"
         "| run | preset | episode 1, steps (IQM [95 % CI]) | median steps of episodes 3+ (IQM over seeds) "
         "| seeds at the threshold within the budget | env steps to the threshold (IQM; never: the budget) "
         "| ms per seed-step |\n|---|---|---|---|---|---|---|\n"
         "| dgpq | paper-validated | 120 | 18.0 | 20 of 20 | 300 | 0.53 |\n"
         "| dqn | paper-validated | 400 | 40.0 | 0 of 20 | 10,000 | 0.23 |\n"
         "| random | paper | 500 (20 of 20 seeds capped at 20000 steps) | 500.0 | 0 of 20 | 10,000 | 0.02 |\n")
+
+
+def test_the_section_counts_only_what_the_budget_saw():
+    """Episodes begun within the 10,000-step budget run to their end. late: 9,760 steps, then ten of 25
+    whose mean meets the threshold only at 10,010 steps, past the budget (never: the budget); three:
+    episodes of 5,000, 4,000 and 2,000 (the third begun at 9,000), so episode 3 alone is "3+"; two:
+    6,000 and 5,000, no episode 3 at all."""
+    runs = {"square-pt-late": run_of("l", lambda s, e: 9_760 if e == 1 else 25),
+            "square-pt-three": run_of("t", lambda s, e: {1: 5_000, 2: 4_000}.get(e, 2_000)),
+            "square-pt-two": run_of("w", lambda s, e: 6_000 if e == 1 else 5_000)}
+    assert runs["square-pt-late"].df.groupby("seed").env_steps.max().tolist() == [10_010] * 20
+    rows = m.reproduce_section(runs, None, "", "", []).splitlines()[-3:]
+    assert rows == ["| late | paper-validated | 9,760 | 25.0 | 0 of 20 | 10,000 | 0.01 |",
+                    "| three | paper-validated | 5,000 | 2000.0 | 0 of 20 | 10,000 | 0.00 |",
+                    "| two | paper-validated | 6,000 | - | 0 of 20 | 10,000 | 0.00 |"]
+    assert m.to_threshold(runs["square-pt-late"].df, 10_000).tolist() == [10_000.0] * 20
+    assert m.to_threshold(runs["square-pt-late"].df, 20_000).tolist() == [10_010.0] * 20
+    assert m.to_threshold(runs["square-pt-late"].df, 10_000).dtype == float
+
+
+def test_the_budget_of_a_run():
+    runs = {"square-pt-dgpq": run_of("d", lambda s, e: 18)}
     assert m.budget_of(runs["square-pt-dgpq"]) == 10_000
     runs["square-pt-dgpq"].config["run"]["env_steps"] = 0            # no budget recorded: the part's own
     assert m.budget_of(runs["square-pt-dgpq"]) == m.BUDGET == 10_000
