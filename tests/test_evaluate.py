@@ -277,3 +277,24 @@ def test_ctrl_c_mid_evaluation_keeps_the_finished_episodes_apart_from_eval_csv(t
     monkeypatch.setattr(module.Frozen, "act", act)
     evaluate(run, episodes=4)
     assert (run / "eval.csv").exists() and not (run / "eval.partial.csv").exists()
+
+
+def test_ctrl_c_before_any_evaluation_episode_ends_keeps_no_file(tmp_path, monkeypatch):
+    """Interrupted at the first step: nothing finished, so no eval.partial.csv, and the error says so;
+    a nested --out that does not exist yet is made whole (its parents too)."""
+    from trl_dgpq.collectors import evaluate as module
+    run = trained(tmp_path, "--env", "corridor", "--agent", "random", "--seeds", "0,1", "--episodes", 2)
+
+    def at_once(self, td):
+        raise KeyboardInterrupt
+    with monkeypatch.context() as patched:
+        patched.setattr(module.Frozen, "act", at_once)
+        with pytest.raises(module.EvaluationInterrupted) as stop:
+            evaluate(run, episodes=2)
+    assert stop.value.path is None and stop.value.episodes == 0 and str(stop.value) == "no evaluation episode finished"
+    assert not (run / "eval.partial.csv").exists() and not (run / "eval.csv").exists()
+    kept = module.EvaluationInterrupted(tmp_path / "p.csv", 3)
+    assert str(kept) == f"3 evaluation episodes kept in {tmp_path / 'p.csv'}" and kept.episodes == 3
+    nested = tmp_path / "a" / "b" / "c"
+    df = evaluate(run, episodes=2, out=nested)
+    assert len(pd.read_csv(nested / "eval.csv")) == len(df) == 4
