@@ -126,13 +126,12 @@ def evaluate(folder, episodes: int = 10, progress: bool = False, out=None) -> pd
         raise ValueError(f"episodes must be a positive integer, got {episodes}")
     finished = []
     try:
-        df = pd.concat([evaluate_job(j, int(episodes), progress, finished.extend) for j in jobs(folder)],
-                       ignore_index=True)
+        df = pd.concat([evaluate_job(j, int(episodes), progress, finished.extend) for j in jobs(folder)])
     except KeyboardInterrupt:
         if finished:
             write_csv(frame(finished), target / PARTIAL)
         raise EvaluationInterrupted(target / PARTIAL if finished else None, len(finished)) from None
-    df = df.sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
+    df = df.sort_values(["seed", "episode"]).reset_index(drop=True)   # (seed, episode) is unique: any sort
     write_csv(df, target / EVAL)
     (target / PARTIAL).unlink(missing_ok=True)   # a whole evaluation replaces an interrupted one
     return df

@@ -112,17 +112,19 @@ def test_ddpg_exploits_without_noise():
 @pytest.mark.parametrize("agent_class, argv", [
     (DQN, ["--env", "corridor", "--agent", "dqn", "--episodes", 2]),
     (DDPG, ["--env", "liquidation", "--agent", "ddpg", "--episodes", 1, "--trades", 6, "--horizon", 6])])
-def test_evaluation_acts_by_exploit_never_by_the_exploring_act(tmp_path, monkeypatch, agent_class, argv):
+def test_evaluation_acts_by_exploit_never_by_the_exploring_act(tmp_path, monkeypatch, capsys, agent_class, argv):
     """A trained DQN (still in its random warm-up) and DDPG (OU noise) evaluated with their
-    training ``act`` made to fail: evaluation never calls it."""
+    training ``act`` made to fail: evaluation never calls it (and shows no progress unless asked)."""
     from trl_dgpq.collectors.evaluate import evaluate_job
     out = trained(tmp_path, "--seeds", "0,1", *argv)
 
     def explore(self, td):
         raise AssertionError(f"{type(self).__name__}.act (exploration) called in evaluation")
     monkeypatch.setattr(agent_class, "act", explore)
+    capsys.readouterr()
     df = evaluate_job(out, 2)
     assert list(df.seed) == [0, 0, 1, 1] and list(df.episode) == [1, 2, 1, 2]
+    assert capsys.readouterr().err == ""
 
 def test_a_folder_without_a_checkpoint_is_one_line(tmp_path, capsys):
     with pytest.raises(RunError, match="holds no run with a checkpoint"):
