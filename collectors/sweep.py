@@ -85,10 +85,20 @@ def planned_seed_steps(job: Job) -> int:
     return len(job.seeds) * per_seed
 
 
-def minutes_left(minutes: float, done: List[Job], left: List[Job]) -> float:
+def minutes_left(minutes: float, done: List[Job], left: List[Job],
+                 cost: Callable[[Job], float] = planned_seed_steps, running: int = 0) -> float:
     """The time the jobs ``left`` need at the rate the ``done`` ones took ``minutes``, by their
-    planned seed-steps."""
-    return minutes * sum(map(planned_seed_steps, left)) / max(1, sum(map(planned_seed_steps, done)))
+    ``cost`` (default: planned seed-steps; reproduce passes each job's estimated seconds, since a
+    scripted job's step costs a hundredth of a learner's). The first ``running`` of ``left`` are
+    under way: half of each counts as done (the minutes went to them too)."""
+    under_way = sum(map(cost, left[:running])) / 2
+    spent = sum(map(cost, done)) + under_way
+    return minutes * (sum(map(cost, left)) - under_way) / spent if spent > 0 else 0.0
+
+
+def clock(minutes: float) -> str:
+    """"0.4 min", "12 min", "2.5 h": a duration as the progress lines print it."""
+    return f"{minutes / 60:.1f} h" if minutes >= 120 else f"{minutes:.0f} min" if minutes >= 10 else f"{minutes:.1f} min"
 
 
 def makespan(seconds: List[float], workers: int) -> float:
@@ -454,10 +464,12 @@ def load(out) -> tuple:
 
 
 def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int] = None,
-            ray_address: Optional[str] = None, cpus_per_job: float = 1, log=print) -> dict:
+            ray_address: Optional[str] = None, cpus_per_job: float = 1, log=print,
+            cost: Callable[[Job], float] = planned_seed_steps) -> dict:
     """Run the jobs that have not finished; merge each experiment as soon as its jobs all
     have (so that a sweep of many hours can be read before it ends: ``reproduce --report``).
-    Returns the report {job name: outcome} (also in OUT/report.json)."""
+    ``cost`` weighs the jobs for the time-left guide (``minutes_left``). Returns the report {job
+    name: outcome} (also in OUT/report.json)."""
     if backend not in BACKENDS:
         raise SweepError(f"backend must be one of {BACKENDS}, got {backend!r}")
     out = Path(out)
@@ -479,10 +491,11 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
         failed = sum(r["status"] != "finished" for name, r in report.items() if name in names)
         left = len(todo) - done[0]
         # local: the pool refills at once, so min(workers, left) run; Ray schedules what it was given
-        running = f" ({min(workers or os.cpu_count() or 1, left)} running)" if backend == "local" and left else ""
+        busy = min(workers or os.cpu_count() or 1, left) if backend == "local" else 0
+        running = f" ({busy} running)" if busy else ""
         minutes = (time.perf_counter() - t0) / 60
-        rest = [j for j in todo if j not in finished]
-        eta = f", ~{minutes_left(minutes, finished, rest):.0f} min left at this rate" if left else ""  # a guide
+        rest = [j for j in todo if j not in finished]   # the pool starts them in this order: its first run
+        eta = f", ~{clock(minutes_left(minutes, finished, rest, cost, busy))} left at this rate" if left else ""
         line = (f"[{done[0]}/{len(todo)} jobs done, {failed} not finished, {left} to go{running}; "
                 f"{minutes:.1f} min{eta}] {job.name}: {result['status']}")
         log(line + (f" -- {result['reason']}" if result.get("reason") else ""))

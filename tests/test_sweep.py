@@ -416,6 +416,33 @@ def test_the_time_left_is_weighed_by_each_jobs_planned_steps():
     cart = resolve_config(env="gym:CartPole-v1", agent="random", seeds=[0, 1], episodes=3)
     long = resolve_config(env="gym:CartPole-v1", agent="random", seeds=[0, 1], episodes=100, env_steps=700)
     assert [sweep.planned_seed_steps(sweep.Job("d", 0, [0, 1], "x", cfg)) for cfg in (cart, long)] == [3000, 1400]
+    # weighed by another cost (reproduce's estimated seconds): a job costing 3 left after 1 + 2 in a minute
+    seconds = {"a": 1.0, "b": 2.0, "c": 3.0}
+    assert sweep.minutes_left(1.0, [a, b], [c], cost=lambda j: seconds[j.experiment]) == pytest.approx(1.0)
+    assert sweep.minutes_left(1.0, [], [c]) == 0.0              # nothing done yet: no guess
+    # c under way on one worker: half of it counts as done: 1 minute for 1 + 2 + 1.5, 1.5 left
+    assert sweep.minutes_left(1.0, [a, b], [c], cost=lambda j: seconds[j.experiment], running=1) == pytest.approx(
+        1.5 / 4.5)
+    assert [sweep.clock(m) for m in (0.44, 9.96, 10.4, 119, 150)] == ["0.4 min", "10.0 min", "10 min", "119 min",
+                                                                    "2.5 h"]
+
+
+def test_reproduce_weighs_the_time_left_by_each_jobs_estimated_seconds():
+    """A job of an experiment the publication estimates costs its start and its share of the
+    estimate's steps (half the seeds: half); one of an experiment it cannot estimate (liquidation,
+    not published) its start and its planned seed-steps at the median seconds per planned seed-step
+    of the estimated ones."""
+    publication = Path(__file__).resolve().parent.parent / "results" / "report"
+    planned = reproduce.experiments("report", ["square-paper-tuned", "liquidation"])
+    estimated = {n: s for n, s, _ in reproduce.estimate(planned, publication) if s is not None}
+    assert set(estimated) == {"square-pt-dgpq", "square-pt-dqn", "square-pt-random"}
+    cost = reproduce.job_cost(planned, publication)
+    half = sweep.Job("square-pt-dqn", 0, planned["square-pt-dqn"]["run"]["seeds"][:10], "x", planned["square-pt-dqn"])
+    start = reproduce.JOB_START_S
+    assert cost(half) == pytest.approx(start + (estimated["square-pt-dqn"] - start) / 2)
+    rates = sorted((estimated[n] - start) / (20 * 10_000) for n in estimated)   # 20 seeds x the 10,000-step budget
+    twap = sweep.Job("liq-twap", 0, planned["liq-twap"]["run"]["seeds"], "x", planned["liq-twap"])
+    assert cost(twap) == pytest.approx(start + 4 * 11_000 * 60 * rates[1])   # 4 seeds x 11,000 episodes of 60 trades
 
 
 @pytest.mark.slow
@@ -777,8 +804,8 @@ def test_sweep_and_reproduce_end_a_signal_with_one_line_and_its_code(tmp_path, m
 def test_the_plan_estimates_each_experiment_from_the_published_one_like_it(tmp_path, capsys):
     """A publication holding one corridor run (1 seed x 10 episodes, 1 s per episode for 4, then 2 s):
     4 episodes of 2 seeds cost 2 x 4 x 1 = 8 s; 20 episodes, past the published 10, cost
-    2 x (10 x 1.6 + 10 x 2) = 72 s (the extra episodes at its last 10 %'s rate); another agent has
-    none like it."""
+    2 x (10 x 1.6 + 10 x 2) = 72 s (the extra episodes at its last 10 %'s rate); each job 3 s more
+    to start; another agent has none like it."""
     data = tmp_path / "pub" / "data"
     data.mkdir(parents=True)
     a = resolve_config(env="corridor", agent="constant", seeds=[5], episodes=10)
@@ -791,18 +818,20 @@ def test_the_plan_estimates_each_experiment_from_the_published_one_like_it(tmp_p
                "d": resolve_config(env="corridor", agent="random", seeds=[10], episodes=4),
                "a": a}
     got = {name: (seconds, how) for name, seconds, how in reproduce.estimate(planned, tmp_path / "pub")}
-    assert got["b"] == (pytest.approx(8.0), "like a, 0 settings apart")
-    assert got["c"] == (pytest.approx(72.0), "like a, 1 setting apart")
-    assert got["d"] == (None, "no published experiment like it") and got["a"] == (pytest.approx(16.0), "measured")
+    start = reproduce.JOB_START_S
+    assert start == 3.0
+    assert got["b"] == (pytest.approx(3 + 8.0), "like a, 0 settings apart")
+    assert got["c"] == (pytest.approx(3 + 72.0), "like a, 1 setting apart")
+    assert got["d"] == (None, "no published experiment like it") and got["a"] == (pytest.approx(3 + 16.0), "measured")
     text = reproduce.plan_text(planned, tmp_path / "pub")
-    assert "  c: 2 seeds x 20, ~1.2 min (like a, 1 setting apart)\n" in text
-    assert "4 experiments, one job each: ~1.6 min of one core and wall time 2 cores ~1.2 min" in text
+    assert "  c: 2 seeds x 20, ~1.2 min (like a, 1 setting apart)\n" in text         # 75 s
+    assert "4 experiments, one job each: ~1.8 min of one core and wall time 2 cores ~1.2 min" in text   # 105 s; 75 s
     assert "both without the 1 not estimated (longest job first" in text
     budget = {"e": resolve_config(env="corridor", agent="constant", seeds=[10], episodes=4, env_steps=9),
               "g": resolve_config(env="corridor", agent="constant", seeds=[10], episodes=100, env_steps=9)}
     got = {n: s for n, s, _ in reproduce.estimate(budget, tmp_path / "pub")}   # a: 3 steps an episode, 16 s over 30 steps
-    assert got["e"] == pytest.approx(9 * 16 / 30) and got["g"] == pytest.approx(9 * 16 / 30)
+    assert got["e"] == pytest.approx(3 + 9 * 16 / 30) and got["g"] == pytest.approx(3 + 9 * 16 / 30)
     small = {"h": resolve_config(env="corridor", agent="constant", seeds=[10], episodes=2, env_steps=9)}
-    assert reproduce.estimate(small, tmp_path / "pub")[0][1] == pytest.approx(2 * 3 * 16 / 30)  # its 2 episodes first
+    assert reproduce.estimate(small, tmp_path / "pub")[0][1] == pytest.approx(3 + 2 * 3 * 16 / 30)  # its 2 episodes first
     assert reproduce.main(["--scale", "smoke", "--only", "f16", "--plan", "--experiments", "f16-pd"]) == 0
     assert capsys.readouterr().out.startswith("  f16-pd: 1 seed x 3, ~")

@@ -350,12 +350,18 @@ def like(config: dict, measured: dict) -> tuple:
     return best, f"like {best}, {count(differ(best), 'setting')} apart"
 
 
+# What a job costs besides its steps (a worker forked, its env and agent built, its files written):
+# the published rows' wall_s leave it out. Measured 2026-11-27: the 58 quick-scale jobs of f16-model,
+# f16-model-gwh14 and square-paper-tuned took 112 s on 2 workers (load ~3) for ~12 s of estimated steps.
+JOB_START_S = 3.0
+
+
 def estimate(planned: dict, publication: Path) -> list:
     """[(name, seconds or None, how)] of each planned experiment, one job each, from a published
     experiment like it (``like``): with an env-step budget, its seeds times the budget times that
     one's wall time per step; else its seeds times its episodes times that one's wall time per
-    seed-episode over its first as many episodes (learning changes what an episode costs). A batch
-    of another size costs otherwise per seed: an estimate, not a promise."""
+    seed-episode over its first as many episodes (learning changes what an episode costs); plus
+    ``JOB_START_S``. A batch of another size costs otherwise per seed: an estimate, not a promise."""
     from trl_dgpq.analysis import published
     measured = {}
     if published.is_published(publication):
@@ -379,8 +385,27 @@ def estimate(planned: dict, publication: Path) -> list:
             # a plan longer than the published run: its later episodes at the rate of its last 10 %
             tail = float(rows[rows.episode > 0.9 * ran]["wall_s"].mean())
             seconds = len(run["seeds"]) * (per * min(run["episodes"], ran) + tail * max(0, run["episodes"] - ran))
-        out.append((name, seconds, how))
+        out.append((name, JOB_START_S + seconds, how))
     return out
+
+
+def job_cost(planned: dict, publication: Path):
+    """Job -> its estimated seconds (``estimate``, its share of its experiment's seeds), for the
+    sweep's time-left guide; a job of an experiment with no estimate at its planned seed-steps times
+    the median seconds per planned seed-step of those with one (all at their seed-steps if none has)."""
+    estimated = {name: seconds for name, seconds, _ in estimate(planned, publication) if seconds is not None}
+    steps, per_step = sweep.planned_seed_steps, {}
+
+    def cost(job) -> float:
+        seconds = estimated.get(job.experiment)
+        if seconds is not None:   # the experiment's steps shared by its jobs' seeds, each job its own start
+            return JOB_START_S + (seconds - JOB_START_S) * len(job.seeds) / len(planned[job.experiment]["run"]["seeds"])
+        if "rate" not in per_step:    # once: the jobs' experiments are the plan's
+            rates = sorted((estimated[n] - JOB_START_S) / steps(sweep.Job(n, 0, planned[n]["run"]["seeds"], "",
+                                                                           planned[n])) for n in estimated)
+            per_step["rate"] = rates[len(rates) // 2] if rates else 1.0
+        return JOB_START_S + steps(job) * per_step["rate"]
+    return cost
 
 
 def hours(seconds: float) -> str:
@@ -545,7 +570,8 @@ def main(argv=None) -> int:
               + (f", {len(now)} of them now" if len(now) < len(planned) else "") + f", {args.workers} workers",
               flush=True)
         t0 = time.perf_counter()
-        report = sweep.execute(out, jobs, "local", args.workers, log=lambda line: print(line, flush=True))
+        report = sweep.execute(out, jobs, "local", args.workers, log=lambda line: print(line, flush=True),
+                               cost=job_cost(planned, Path(__file__).resolve().parents[2] / "results" / "report"))
         if sweep.exit_code(report, "the same command"):
             return 1
         path = write_report(out, args.scale, time.perf_counter() - t0, args.only)
