@@ -167,7 +167,11 @@ def episodes(values, column, seeds=2, **other):
 
 
 def claims_of(module, *keys):
-    return {c.key: c for c in module.CLAIMS if c.key in keys}
+    """The module's claims of ``keys``, declared now (not the list built on import: a test then
+    reaches the declaring code and the measures it makes)."""
+    found = {c.key: c for c in module.declared_claims() if c.key in keys}
+    assert set(found) == set(keys), f"no claims {sorted(set(keys) - set(found))}"
+    return found
 
 
 def test_the_squares_claims():
@@ -191,6 +195,14 @@ def test_the_squares_claims():
     assert c.verdict == "capped" and "2 of 2 seeds capped at 200 steps" in c.ours
     reached = run(episodes([200, 30, 20], "steps", terminated=True), max_steps=200, reward="paper")
     assert judge(got["square/paper/episode-1"], {"square-paper-nocap": reached}, "report").verdict == "agrees"  # no cut
+    # rows without the terminated column (older runs): an episode at the cap counts as cut, one below it not
+    at_cap = run(episodes([200, 30, 20], "steps"), max_steps=200, reward="paper")
+    assert judge(got["square/paper/episode-1"], {"square-paper-nocap": at_cap}, "report").verdict == "capped"
+    below = run(episodes([199, 30, 20], "steps"), max_steps=200, reward="paper")
+    assert judge(got["square/paper/episode-1"], {"square-paper-nocap": below}, "report").verdict == "agrees"
+    short = run(episodes([200, 30], "steps"), max_steps=200, reward="paper")
+    with pytest.raises(ValueError, match="^square-paper-nocap: no seed ran an episode 3 within the budget$"):
+        sq.later_episodes("square-paper-nocap")({"square-paper-nocap": short})
     report = run(episodes([200, 200], "steps"), max_steps=200, reward="shaped")
     r = judge(got["square/report/episode-1"], {"square-report-nocap": report}, "report")
     assert r.verdict == "capped" and not r.variant                    # the seed report ran on shaped too
