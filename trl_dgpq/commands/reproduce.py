@@ -132,7 +132,7 @@ def toml_value(value) -> str:
 def sweep_file(settings: dict, command: str) -> str:
     """The planned experiments as a sweep file (``trl-dgpq sweep FILE``): each experiment's run
     settings at the top, its env and agent settings under ``[experiment.set]``; the same configs as
-    the plan (tests/test_reproduce.py reads it back)."""
+    the plan (tests/test_reproduce_plan.py reads it back)."""
     from trl_dgpq.collectors.experiment import RunConfig
     from trl_dgpq.config import leaves
     run_keys = {leaf.key for leaf in leaves(RunConfig)}
