@@ -127,11 +127,7 @@ def test_the_committed_publication_rebuilds_to_the_committed_files():
 def declared_now(part) -> list:
     """A part's claims built now (``declared_claims``), not the list its module built on import: a
     test then reaches the code that declares them."""
-    make = getattr(part, "declared_claims", None)
-    if make is None:                       # an object of a module (a part apart): its declaration
-        import importlib
-        make = lambda: importlib.import_module(type(part).__module__).declared_claims(part.formulation)  # noqa: E731
-    return make()
+    return part.declared_claims()
 
 
 def test_every_published_claim_is_as_declared_now():

@@ -171,7 +171,8 @@ def figures(runs, labels, out: Path, block: int = 10, last=None, title: str = ""
 # ------------------------------------------------------------ the reproduction (scripts/reproduce.py)
 TITLE = "Aircraft altitude hold (GWH14's second experiment)"
 # experiments reproduced apart: each its own `reproduce --only` name, section and claims ("module" or
-# "module:object" of this folder, with REPRODUCE, SCALES, CLAIMS, TITLE, SUMMARY and reproduce_section, as here)
+# "module:object" of this folder, with REPRODUCE, SCALES, CLAIMS and declared_claims(), TITLE, SUMMARY and
+# reproduce_section, as here)
 APART = {"f16-model": "model_ablation:FLIGHT_05", "f16-model-gwh14": "model_ablation:GWH14"}
 # the README's paragraph on the domain: words, no numbers (those come from the data)
 SUMMARY = ("DGPQ at L_Q 5 and 10 and DQN in GWH14's formulation (a decision every 0.05 s), the same deciding "

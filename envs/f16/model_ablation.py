@@ -298,6 +298,10 @@ class Ablation:
                         f"20 % or 50 % ({draws} each); 20 fresh seeds (30-49) x 1,000 episodes, judged on GWH14's "
                         "unshaped reward. The LQR potentials use the model: counted apart.")
 
+    def declared_claims(self) -> list:
+        """Its claims built anew, as a domain's analysis offers them (``CLAIMS`` is the list built once)."""
+        return declared_claims(self.formulation)
+
     def reproduce_section(self, runs: dict, out: Path, label: str, title: str, judged: list) -> str:
         f = self.formulation
         (out / self.folder).mkdir(exist_ok=True)
