@@ -76,12 +76,17 @@ def manifest(folder) -> dict:
     return json.loads((Path(folder) / DATA / MANIFEST).read_text())
 
 
+def recorded_config(folder, name: str) -> dict:
+    """A published experiment's recorded config, without reading its rows."""
+    return json.loads((Path(folder) / DATA / f"{name}.json").read_text())
+
+
 def load(folder, name: str) -> Run:
     """A published experiment as ``load_run`` gives a run folder's (``Run.path``: where its data lie)."""
     data = Path(folder) / DATA
     df = read_csv_exact(data / f"{name}.csv.xz").sort_values(["seed", "episode"], kind="stable")
     df["env_steps"] = df.groupby("seed")["steps"].cumsum()
-    return Run(data / name, df.reset_index(drop=True), json.loads((data / f"{name}.json").read_text()))
+    return Run(data / name, df.reset_index(drop=True), recorded_config(folder, name))
 
 
 def commits_of(run: Run) -> list:

@@ -331,10 +331,11 @@ def cost_section(loaded) -> str:
             f"{', '.join(sorted(commits))}.\n")
 
 
-def like(config: dict, measured: dict) -> tuple:
+def like(config: dict, measured: dict, rows_of) -> tuple:
     """(name, how) of the published experiment whose time per seed-episode stands for a planned one's:
     itself (the same settings), else the one of the same env and agent with the fewest env and agent
-    settings different (then the most seed-episodes); (None, "") if none has its env and agent."""
+    settings different (then the most seed-episodes, ``rows_of(name)``: read only for those tied);
+    (None, "") if none has its env and agent."""
     mine = same_config(config)
     same = [n for n, c in measured.items() if c["_same"] == mine]
     if same:
@@ -346,14 +347,16 @@ def like(config: dict, measured: dict) -> tuple:
     def differ(name: str) -> int:
         theirs = measured[name]["_same"]
         return sum(theirs[section].get(k) != v for section in ("env", "agent") for k, v in mine[section].items())
-    best = min(found, key=lambda n: (differ(n), -len(measured[n]["_rows"])))
-    return best, f"like {best}, {count(differ(best), 'setting')} apart"
+    fewest = min(map(differ, found))
+    best = min([n for n in found if differ(n) == fewest], key=lambda n: -len(rows_of(n)))
+    return best, f"like {best}, {count(fewest, 'setting')} apart"
 
 
 # What a job costs besides its steps (a worker forked, its env and agent built, its files written):
 # the published rows' wall_s leave it out. Measured 2026-11-27: the 58 quick-scale jobs of f16-model,
 # f16-model-gwh14 and square-paper-tuned took 112 s on 2 workers (load ~3) for ~12 s of estimated steps.
 JOB_START_S = 3.0
+PUBLICATION = Path(__file__).resolve().parents[2] / "results" / "report"   # the times --plan estimates from
 
 
 def estimate(planned: dict, publication: Path) -> list:
@@ -362,20 +365,28 @@ def estimate(planned: dict, publication: Path) -> list:
     one's wall time per step; else its seeds times its episodes times that one's wall time per
     seed-episode over its first as many episodes (learning changes what an episode costs); plus
     ``JOB_START_S``. A batch of another size costs otherwise per seed: an estimate, not a promise."""
+    from functools import cache
+
     from trl_dgpq.analysis import published
     measured = {}
+    wanted = {(c["run"]["env"], c["run"]["agent"]) for c in planned.values()}
     if published.is_published(publication):
         for name in published.manifest(publication)["experiments"]:
-            run = published.load(publication, name)
-            sections = {k: run.config[k] for k in ("run", "env", "agent")}
-            measured[name] = {**sections, "_same": same_config(sections), "_rows": run.df[["episode", "steps", "wall_s"]]}
+            recorded = published.recorded_config(publication, name)
+            if (recorded["run"]["env"], recorded["run"]["agent"]) in wanted:   # ``like`` takes no other
+                sections = {k: recorded[k] for k in ("run", "env", "agent")}
+                measured[name] = {**sections, "_same": same_config(sections)}
+
+    @cache
+    def rows_of(name: str):   # the rows of the experiments chosen (or tied), each read once
+        return published.load(publication, name).df[["episode", "steps", "wall_s"]]
     out = []
     for name, config in planned.items():
-        source, how = like(config, measured)
+        source, how = like(config, measured, rows_of)
         if source is None:
             out.append((name, None, "no published experiment like it"))
             continue
-        rows, run = measured[source]["_rows"], config["run"]
+        rows, run = rows_of(source), config["run"]
         if run.get("env_steps"):       # a budget, or its episodes at the published run's steps per episode
             steps = min(run["env_steps"], run["episodes"] * float(rows["steps"].mean()))
             seconds = len(run["seeds"]) * steps * float(rows["wall_s"].sum() / rows["steps"].sum())
@@ -394,17 +405,16 @@ def job_cost(planned: dict, publication: Path):
     sweep's time-left guide; a job of an experiment with no estimate at its planned seed-steps times
     the median seconds per planned seed-step of those with one (all at their seed-steps if none has)."""
     estimated = {name: seconds for name, seconds, _ in estimate(planned, publication) if seconds is not None}
-    steps, per_step = sweep.planned_seed_steps, {}
+    steps = sweep.planned_seed_steps
+    rates = sorted((estimated[n] - JOB_START_S) / steps(sweep.Job(n, 0, planned[n]["run"]["seeds"], "", planned[n]))
+                   for n in estimated)
+    rate = rates[len(rates) // 2] if rates else 1.0
 
     def cost(job) -> float:
         seconds = estimated.get(job.experiment)
         if seconds is not None:   # the experiment's steps shared by its jobs' seeds, each job its own start
             return JOB_START_S + (seconds - JOB_START_S) * len(job.seeds) / len(planned[job.experiment]["run"]["seeds"])
-        if "rate" not in per_step:    # once: the jobs' experiments are the plan's
-            rates = sorted((estimated[n] - JOB_START_S) / steps(sweep.Job(n, 0, planned[n]["run"]["seeds"], "",
-                                                                           planned[n])) for n in estimated)
-            per_step["rate"] = rates[len(rates) // 2] if rates else 1.0
-        return JOB_START_S + steps(job) * per_step["rate"]
+        return JOB_START_S + steps(job) * rate
     return cost
 
 
@@ -543,7 +553,7 @@ def main(argv=None) -> int:
             print(f"wrote {args.sweep_file}: {count(len(now), 'experiment')}")
             return 0
         if args.plan:
-            print(plan_text({n: planned[n] for n in now}, Path(__file__).resolve().parents[2] / "results" / "report"),
+            print(plan_text({n: planned[n] for n in now}, PUBLICATION),
                   end="")
             return 0
         if args.report:
@@ -571,7 +581,7 @@ def main(argv=None) -> int:
               flush=True)
         t0 = time.perf_counter()
         report = sweep.execute(out, jobs, "local", args.workers, log=lambda line: print(line, flush=True),
-                               cost=job_cost(planned, Path(__file__).resolve().parents[2] / "results" / "report"))
+                               cost=job_cost(planned, PUBLICATION))
         if sweep.exit_code(report, "the same command"):
             return 1
         path = write_report(out, args.scale, time.perf_counter() - t0, args.only)
