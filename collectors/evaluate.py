@@ -14,7 +14,6 @@ evaluation).
 """
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 from typing import Iterator, List, Optional
@@ -24,7 +23,7 @@ import torch
 
 from .experiment import build, describe
 from .online import OnlineCollector, frame
-from .runner import CHECKPOINT, RunError, RunFolder, atomic_write
+from .runner import CHECKPOINT, RunError, RunFolder, write_csv
 
 EVAL = "eval.csv"
 PARTIAL = "eval.partial.csv"
@@ -109,13 +108,6 @@ def evaluate_job(job: Path, episodes: int, progress: bool = False, on_rows=None)
                            desc=f"evaluate {describe(config)}").run(on_rows=on_rows)
 
 
-def write_csv(df: pd.DataFrame, path: Path) -> None:
-    buf = io.StringIO()
-    df.to_csv(buf, index=False)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, lambda f: f.write(buf.getvalue().encode()))
-
-
 def evaluate(folder, episodes: int = 10, progress: bool = False, out=None) -> pd.DataFrame:
     """Evaluate every job of the run in ``folder``; writes ``eval.csv`` into ``out`` (default: the
     run's folder; another for a run one may not write into) and returns it. Ctrl-C raises
@@ -129,9 +121,11 @@ def evaluate(folder, episodes: int = 10, progress: bool = False, out=None) -> pd
         df = pd.concat([evaluate_job(j, int(episodes), progress, finished.extend) for j in jobs(folder)])
     except KeyboardInterrupt:
         if finished:
+            target.mkdir(parents=True, exist_ok=True)
             write_csv(frame(finished), target / PARTIAL)
         raise EvaluationInterrupted(target / PARTIAL if finished else None, len(finished)) from None
     df = df.sort_values(["seed", "episode"]).reset_index(drop=True)   # (seed, episode) is unique: any sort
+    target.mkdir(parents=True, exist_ok=True)
     write_csv(df, target / EVAL)
     (target / PARTIAL).unlink(missing_ok=True)   # a whole evaluation replaces an interrupted one
     return df

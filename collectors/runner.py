@@ -107,6 +107,13 @@ def atomic_write(path: Path, write, before_replace=None) -> None:
             tmp.unlink()
 
 
+def write_csv(df: pd.DataFrame, path: Path) -> None:
+    """``df`` as a CSV file at ``path`` without its index, written whole or not at all (``atomic_write``)."""
+    buf = io.StringIO()
+    df.to_csv(buf, index=False)
+    atomic_write(path, lambda f: f.write(buf.getvalue().encode()))
+
+
 CODE = ("trl_dgpq", "envs", "collectors", "scripts", "setup.py", "pyproject.toml")   # what a run's code is
 
 
@@ -327,9 +334,7 @@ class RunFolder:
     def write_episodes(self, df: pd.DataFrame) -> pd.DataFrame:
         """Write ``df`` as episodes.csv sorted by (seed, episode), atomically; returns it sorted."""
         df = df.sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
-        buf = io.StringIO()
-        df.to_csv(buf, index=False)
-        atomic_write(self.file(EPISODES), lambda f: f.write(buf.getvalue().encode()))
+        write_csv(df, self.file(EPISODES))
         return df
 
     def finalize_csv(self) -> pd.DataFrame:
