@@ -23,8 +23,8 @@ def test_every_scales_plan_as_a_sweep_file_is_the_same_configs(tmp_path, scale):
 
 
 def test_seeds_a_dotted_setting_and_each_kind_of_value_survive_the_file(tmp_path):
-    """One seed is written as a list ("30" would be seeds 0-29), a range as "A-B", other seeds as a
-    list; a dotted path is one quoted key (bare, TOML would nest it)."""
+    """Seeds as --seeds reads them back: one seed as "30-30" ("30" would be seeds 0-29), a range as "A-B",
+    others as "a,b"; a dotted path is one quoted key (bare, TOML would nest it)."""
     given = {"a": dict(env="square", agent="dgpq", seeds=[30], episodes=2, env_steps=0,
                        **{"env.reward": "paper", "agent.sigma_tol2": 0.0025, "agent.gp": "exact"}),
              "b": dict(env="square", agent="dqn", seeds=[3, 4, 5], episodes=2, env_steps=100, hidden=[8, 8],
@@ -32,7 +32,7 @@ def test_seeds_a_dotted_setting_and_each_kind_of_value_survive_the_file(tmp_path
              "c": dict(env="square", agent="random", seeds=[5, 9], episodes=1, env_steps=0, checkpoint_every=7)}
     text = reproduce.sweep_file(given, "cmd")
     data = tomllib.loads(text)["experiment"]
-    assert [e["seeds"] for e in data] == [[30], "3-5", [5, 9]]
+    assert [e["seeds"] for e in data] == ["30-30", "3-5", "5,9"]
     assert data[0]["set"] == {"env.reward": "paper", "agent.sigma_tol2": 0.0025, "agent.gp": "exact"}
     assert data[1]["set"] == {"hidden": [8, 8], "learning_starts": 0} and data[2]["checkpoint_every"] == 7
     assert '"env.reward" = "paper"' in text and text.startswith("# Written by `cmd`")

@@ -133,6 +133,7 @@ def sweep_file(settings: dict, command: str) -> str:
     """The planned experiments as a sweep file (``trl-dgpq sweep FILE``): each experiment's run
     settings at the top, its env and agent settings under ``[experiment.set]``; the same configs as
     the plan (tests/test_reproduce_plan.py reads it back)."""
+    from trl_dgpq.analysis.results import seeds_text
     from trl_dgpq.collectors.experiment import RunConfig
     from trl_dgpq.config import leaves
     run_keys = {leaf.key for leaf in leaves(RunConfig)}
@@ -144,10 +145,8 @@ def sweep_file(settings: dict, command: str) -> str:
         lines += ["", "[[experiment]]", f"name = {toml_value(name)}"]
         rest = {}
         for key, value in given.items():
-            if key == "seeds":         # a range as "A-B"; one seed as a list ("N" would be N seeds)
-                seeds = list(value)
-                span = seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 1
-                lines.append(f"seeds = {toml_value(f'{seeds[0]}-{seeds[-1]}' if span else seeds)}")
+            if key == "seeds":         # as --seeds reads it back ("A-B", "N-N" for one seed)
+                lines.append(f"seeds = {toml_value(seeds_text(value))}")
             elif key in run_keys:
                 lines.append(f"{key} = {toml_value(value)}")
             else:
