@@ -10,6 +10,7 @@
     python scripts/bench.py neural  # DQN and DDPG seed-batched vs the per-seed code, and SB3's DQN
     python scripts/bench.py threads # ms per seed-step at 1 and 2 torch threads, quiet and loaded
     python scripts/bench.py step-parts  # a learning step: the update and the work around it
+    python scripts/bench.py bound   # neural learners: ms per seed-step against their arithmetic bound
 """
 from __future__ import annotations
 
@@ -459,6 +460,12 @@ def main(argv=None):
     t.add_argument("--burners", type=int, default=2, help="busy processes beside the loaded measurements")
     t.add_argument("--out", default=None)
     t.set_defaults(fn=lambda a: _neural().bench_threads(a))
+    bd = sub.add_parser("bound", help="neural learners: ms per seed-step against their arithmetic bound")
+    bd.add_argument("--learners", nargs="+", default=list(_neural().BOUND_CASES), choices=list(_neural().BOUND_CASES))
+    bd.add_argument("--seed-counts", nargs="+", type=int, default=[1, 4, 10])
+    bd.add_argument("--threads", type=int, default=1)
+    bd.add_argument("--out", default=None)
+    bd.set_defaults(fn=lambda a: _neural().bench_bound(a))
     sp = sub.add_parser("step-parts", help="a learning step of DDPG and DQN: the update and the work around it")
     sp.add_argument("--threads", type=int, default=1)
     sp.add_argument("--warmup", type=int, default=1_100)

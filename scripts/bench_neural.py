@@ -252,3 +252,93 @@ def bench_step_parts(args) -> None:
     out.write_text(json.dumps(dict(meta=dict(threads=args.threads, load_average=os.getloadavg()), results=results),
                               indent=1))
     print(f"wrote {out}")
+
+
+# One learner's cost per seed-step against its arithmetic bound: the collector's wall time over a
+# window after learning started (the whole step: env, act, replay, updates), then the same window
+# again under torch's FlopCounterMode (the matrix products of every forward, backward and target,
+# as torch counts them) with the optimisers' steps counted by a hook. The bound is
+# FLOPs / the core's matrix-product peak + the optimiser's memory traffic / the core's bandwidth
+# (Adam reads parameter, gradient and both moments and writes three of them back: 28 bytes per
+# fp32 parameter, the least any Adam can move), both measured in the same child just before.
+BOUND = r"""
+import json, sys, time, torch
+spec = json.loads(sys.argv[1])
+torch.set_num_threads(spec["threads"])
+from torch.optim.optimizer import register_optimizer_step_post_hook
+from torch.utils.flop_counter import FlopCounterMode
+from trl_dgpq.collectors.experiment import build, resolve_config
+from trl_dgpq.collectors.online import OnlineCollector
+
+def best(fn, n):
+    fn()
+    times = []
+    for _ in range(n):
+        t0 = time.perf_counter(); fn(); times.append(time.perf_counter() - t0)
+    return min(times)
+a, b = torch.randn(1024, 1024), torch.randn(1024, 1024)
+peak = 2 * 1024 ** 3 / best(lambda: a @ b, 10)                     # FLOP/s
+big, dst = torch.randn(16 * 2 ** 20), torch.empty(16 * 2 ** 20)    # 64 MiB each
+bandwidth = 2 * big.numel() * 4 / best(lambda: dst.copy_(big), 10)  # bytes/s, read + write
+env, agent = build(resolve_config(**spec["config"]))
+S = env.batch_size[0]
+col = OnlineCollector(env, agent, 10 ** 9, progress=False)
+col.max_total_steps = spec["warmup"]
+col.run()
+col.step_seconds.clear()
+col.max_total_steps = spec["window"]
+col.run()
+wall = sum(col.step_seconds)
+steps = {"n": 0, "params": 0}
+def counted(opt, args, kwargs):
+    steps["n"] += 1
+    steps["params"] += sum(p.numel() for g in opt.param_groups for p in g["params"])
+hook = register_optimizer_step_post_hook(counted)
+with FlopCounterMode(display=False) as fc:
+    col.run()
+hook.remove()
+seed_steps = S * spec["window"]
+flops = fc.get_total_flops() / seed_steps
+adam_bytes = 28 * steps["params"] / seed_steps
+bound = flops / peak + adam_bytes / bandwidth
+print(json.dumps(dict(ms_per_seed_step=wall / seed_steps * 1e3, mflop_per_seed_step=flops / 1e6,
+                      adam_kb_per_seed_step=adam_bytes / 1e3, bound_ms_per_seed_step=bound * 1e3,
+                      peak_gflops=peak / 1e9, bandwidth_gbs=bandwidth / 1e9,
+                      optimizer_steps_per_env_step=steps["n"] / spec["window"])))
+"""
+
+# The learners of the issue's goal 1, each at its domain's default settings (DQN on CartPole: the zoo's).
+BOUND_CASES = {
+    "dqn-cartpole": dict(config=dict(env="gym:CartPole-v1", agent="dqn"), warmup=1_024, window=1_024),
+    "ddpg-liquidation": dict(config=dict(env="liquidation", agent="ddpg"), warmup=200, window=600),
+    "td3-liquidation": dict(config=dict(env="liquidation", agent="td3"), warmup=1_010, window=300),
+    "dqn-f16": dict(config=dict(env="f16", agent="dqn"), warmup=300, window=600),
+}
+
+
+def bench_bound(args) -> None:
+    """ms per seed-step against the arithmetic bound, per learner and seed count, one thread."""
+    results = []
+    print(f"load average at start {os.getloadavg()}; {args.threads} torch thread(s)")
+    print(f"{'learner':>17} {'S':>3} {'ms/seed-step':>13} {'bound ms':>9} {'ratio':>6} {'MFLOP':>7} "
+          f"{'Adam kB':>8} {'vs S=1':>7}")
+    for name in args.learners:
+        case = BOUND_CASES[name]
+        first = None
+        for S in args.seed_counts:
+            spec = dict(threads=args.threads, warmup=case["warmup"], window=case["window"],
+                        config=dict(case["config"], seeds=list(range(S)), episodes=10 ** 9))
+            r = child(BOUND, spec)
+            first = first or r["ms_per_seed_step"]
+            r.update(learner=name, seeds=S, ratio=r["ms_per_seed_step"] / r["bound_ms_per_seed_step"],
+                     cheaper_than_S1=first / r["ms_per_seed_step"], load_average=os.getloadavg())
+            results.append(r)
+            print(f"{name:>17} {S:>3} {r['ms_per_seed_step']:>13.3f} {r['bound_ms_per_seed_step']:>9.3f} "
+                  f"{r['ratio']:>6.1f} {r['mflop_per_seed_step']:>7.2f} {r['adam_kb_per_seed_step']:>8.1f} "
+                  f"{r['cheaper_than_S1']:>6.2f}x", flush=True)
+    print(f"peak {results[-1]['peak_gflops']:.0f} GFLOP/s, bandwidth {results[-1]['bandwidth_gbs']:.1f} GB/s "
+          f"(measured in each child; the last one's)")
+    out = Path(args.out or "bench-bound.json")
+    out.write_text(json.dumps(dict(meta=dict(threads=args.threads, load_average_end=os.getloadavg()),
+                                   results=results), indent=1))
+    print(f"load average at end {os.getloadavg()}; wrote {out}")
