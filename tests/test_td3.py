@@ -96,19 +96,22 @@ def test_target_policy_noise_is_scaled_clipped_then_the_action_boxed():
     assert (far <= 1).all() and (far >= 0).all()
 
 
-def test_actor_and_targets_move_every_policy_delay_critic_steps():
-    """policy_delay 3: the critic moves at every update, the actor and both targets only at the
-    3rd and 6th."""
-    agent = TD3(TD3Config(policy_delay=3, batch_size=8, buffer_size=64, learning_starts=0, **SMALL), [0, 1], 3, SYM)
+@pytest.mark.parametrize("delay", [2, 3])
+def test_actor_and_targets_move_every_policy_delay_critic_steps(delay):
+    """policy_delay d: the critic moves at every update, the actor and both targets only at every
+    d-th; the checkpoint counts the critic's steps."""
+    agent = TD3(TD3Config(policy_delay=delay, batch_size=8, buffer_size=64, learning_starts=0, **SMALL), [0, 1], 3,
+                SYM)
     batch = batch_of(8, S=2)
     moved = []
-    for _ in range(6):
+    for _ in range(2 * delay):
         before = {k: v.clone() for k, v in agent.nets.state_dict().items()}
         agent.update(batch)
         after = agent.nets.state_dict()
         moved.append({name for name in ("actor", "critic", "target_actor", "target_critic")
                       if any(not torch.equal(before[k], after[k]) for k in before if k.startswith(name + "."))})
-    assert moved == [{"critic"}, {"critic"}, {"critic", "actor", "target_actor", "target_critic"}] * 2
+    assert moved == ([{"critic"}] * (delay - 1) + [{"critic", "actor", "target_actor", "target_critic"}]) * 2
+    assert agent.state_dict()["critic_steps"] == 2 * delay
 
 
 def test_warm_up_is_uniform_in_the_box_then_noise_around_the_actor():
@@ -189,3 +192,112 @@ def test_a_time_limit_bootstraps_and_a_termination_does_not():
                                  "done": done, "terminated": terminated}}, batch_size=[1, 3])
     loss = agent.value_loss(batch, torch.randn(1, 3, 1, generator=g))
     torch.testing.assert_close(loss, torch.tensor([[60.5, 24.5, 8.0]]))
+
+
+# a box not at 0, two actions; one seed's spec, as an env describes it (EnvInfo: shape (1, ...))
+BOX2 = Bounded(torch.tensor([[-2.0, 0.0]]), torch.tensor([[3.0, 1.0]]), shape=(1, 2))
+
+
+def test_actions_are_each_seeds_own_draws_mapped_onto_the_box_exactly():
+    """On [-2, 3] x [0, 1], seeds 4 and 9: a warm-up action is low + (high - low) u with u the
+    seed's "td3.explore" uniform draws in float32; after it, the actor's action plus that
+    stream's normal draws x expl_noise x half-width, clipped to the box; float64 both, from a
+    float64 observation (exploit too, without noise)."""
+    from trl_dgpq.rng import SeedStreams, stream_id
+    cfg = TD3Config(learning_starts=1, expl_noise=0.3, **SMALL)
+    agent = TD3(cfg, [4, 9], 3, BOX2)
+    stream = SeedStreams([4, 9], stream_id("td3.explore"))
+    low, high = torch.tensor([-2.0, 0.0]), torch.tensor([3.0, 1.0])
+    td = TensorDict({"observation": torch.randn(2, 3, dtype=torch.float64)}, batch_size=[2])
+    warm = agent.act(td)
+    assert warm.dtype == torch.float64
+    assert torch.equal(warm, (low + (high - low) * stream.uniform(2).to(torch.float32)).to(torch.float64))
+    agent.steps = 1
+    with torch.no_grad():
+        mean = agent.actor(td["observation"].to(torch.float32))
+    noise = stream.normal(2).to(torch.float32) * 0.3 * torch.tensor([2.5, 0.5])
+    got = agent.act(td)
+    assert got.dtype == torch.float64 and torch.equal(got, (mean + noise).clamp(low, high).to(torch.float64))
+    greedy = agent.exploit(td)
+    assert greedy.dtype == torch.float64 and torch.equal(greedy, mean.to(torch.float64))
+
+
+def test_target_smoothing_draws_from_its_own_stream(monkeypatch):
+    """update's smoothing noise is the seeds' "td3.smoothing" normal draws, (S, B, act_dim)."""
+    from trl_dgpq.rng import SeedStreams, stream_id
+    agent = TD3(TD3Config(**SMALL), [4, 9], 3, BOX2)
+    seen = []
+    monkeypatch.setattr(agent, "value_loss", lambda batch, noise: seen.append(noise) or
+                        TD3.value_loss(agent, batch, noise))
+    batch = batch_of(8, S=2)
+    batch["action"] = torch.rand(2, 8, 2)
+    agent.update(batch)
+    assert torch.equal(seen[0], SeedStreams([4, 9], stream_id("td3.smoothing")).normal(8, 2).to(torch.float32))
+
+
+def test_smoothed_target_actions_stay_in_the_box_on_both_faces():
+    """noise_clip 10 half-widths: a huge draw either way lands each target action on that face."""
+    agent = TD3(TD3Config(policy_noise=1.0, noise_clip=10.0, **SMALL), [0], 3, BOX2)
+    obs = torch.randn(1, 5, 3)
+    with torch.no_grad():
+        up = agent.target_action(obs, torch.full((1, 5, 2), 1e6))
+        down = agent.target_action(obs, torch.full((1, 5, 2), -1e6))
+    assert torch.equal(up, torch.tensor([3.0, 1.0]).expand(1, 5, 2))
+    assert torch.equal(down, torch.tensor([-2.0, 0.0]).expand(1, 5, 2))
+
+
+def test_the_actor_loss_leaves_the_critics_without_gradients():
+    agent = TD3(TD3Config(**SMALL), [0, 1], 3, SYM)
+    agent.actor_loss(batch_of(8, S=2)).sum().backward()
+    assert all(p.grad is None for p in agent.critic.parameters())
+    assert all(p.grad is not None for p in agent.actor.parameters())
+    assert all(p.requires_grad for p in agent.critic.parameters())
+
+
+def test_each_optimiser_steps_by_its_own_learning_rate():
+    """Adam's first step moves each weight by at most its lr (|m / sqrt(v)| = 1), most by nearly
+    that: the critics by critic_lr 0.05, the actor by actor_lr 0.02 (policy_delay 1)."""
+    agent = TD3(TD3Config(critic_lr=0.05, actor_lr=0.02, policy_delay=1, **SMALL), [0, 1], 3, SYM)
+    before = {k: v.clone() for k, v in agent.nets.state_dict().items()}
+    agent.update(batch_of(8, S=2))
+    after = agent.nets.state_dict()
+    for name, lr in (("critic", 0.05), ("actor", 0.02)):
+        steps = torch.cat([(after[k] - before[k]).abs().flatten() for k in before
+                           if k.startswith(name + ".") and k.endswith(("weight", "bias"))])
+        assert float(steps.max()) <= lr * 1.0001 and float(steps.max()) > lr * 0.99
+
+
+def test_learning_starts_after_learning_starts_steps_as_the_papers_loop():
+    """Fujimoto et al.'s loop trains once t >= start_timesteps (t from 0): the first update comes
+    with the (learning_starts + 1)-th step, the step counter then at learning_starts + 1."""
+    agent = TD3(TD3Config(learning_starts=5, batch_size=1, buffer_size=8, **SMALL), [0], 3, SYM)
+    agent.steps = 5
+    assert agent.wants_update() == 0
+    agent.steps = 6
+    assert agent.wants_update() == 1
+
+
+def test_td3_names_itself_when_the_env_has_no_action_box():
+    """resolve_config, make and memory_bytes each ask the env for a box as "td3" (the refusal names it)."""
+    from trl_dgpq.envs import env_class
+    info = env_class("square").describe()
+    for call in (lambda: TD3.resolve_config(TD3Config(), info), lambda: TD3.make(TD3Config(), info, [0]),
+                 lambda: TD3.memory_bytes(TD3Config(), info, 1)):
+        with pytest.raises(ValueError, match="^td3 needs a continuous"):
+            call()
+
+
+def test_memory_estimate_counts_every_action_dimension():
+    """An env of 3 observations and a 2-action box: 4 (2 x 3 + 2 + 1) + 2 = 38 bytes a transition."""
+    class Info:
+        observation_dim = 3
+
+        @staticmethod
+        def action_box(agent):
+            return BOX2
+    assert TD3.memory_bytes(TD3Config(buffer_size=10), Info(), 4) == 4 * 10 * 38
+
+
+def test_a_buffer_smaller_than_a_minibatch_is_refused_by_name():
+    with pytest.raises(ValueError, match="batch_size <= buffer_size, got 64 and 10"):
+        TD3Config(batch_size=64, buffer_size=10).cross_check()
