@@ -167,16 +167,27 @@ def read_sweep_file(path) -> Dict[str, dict]:
     return out
 
 
-def plan(experiments: Dict[str, dict], out, seeds_per_job: Optional[int]) -> List[Job]:
-    """Each experiment's seeds in slices of ``seeds_per_job`` (None: one job each)."""
+def plan(experiments: Dict[str, dict], out, seeds_per_job: Optional[int],
+         groups: Optional[Dict[str, int]] = None) -> List[Job]:
+    """Each experiment's seeds in slices of ``seeds_per_job`` (None: one job each), or, for an
+    experiment named in ``groups``, in that many jobs of consecutive seeds, as equal as they go
+    (10 seeds in 3: 4, 3, 3). A seed's rows do not depend on its batch, so a split changes when
+    and where seeds run, not what they give."""
     if seeds_per_job is not None and seeds_per_job < 1:
         raise SweepError(f"seeds_per_job must be >= 1, got {seeds_per_job}")
     jobs = []
     for name, config in experiments.items():
         seeds = list(config["run"]["seeds"])
-        k = seeds_per_job or len(seeds)
-        for j, start in enumerate(range(0, len(seeds), k)):
-            part = seeds[start:start + k]
+        if groups and name in groups:
+            k = groups[name]
+            if not 1 <= k <= len(seeds):
+                raise SweepError(f"{name}: {k} jobs for {count(len(seeds), 'seed')}")
+            sizes = [len(seeds) // k + (i < len(seeds) % k) for i in range(k)]
+            parts = [seeds[sum(sizes[:i]):sum(sizes[:i + 1])] for i in range(k)]
+        else:
+            k = seeds_per_job or len(seeds)
+            parts = [seeds[start:start + k] for start in range(0, len(seeds), k)]
+        for j, part in enumerate(parts):
             jobs.append(Job(name, j, part, str(Path(out) / name / "jobs" / f"j{j:03d}"), _with_seeds(config, part)))
     return jobs
 
@@ -365,7 +376,8 @@ def create(out, experiments: Dict[str, dict], jobs: List[Job], overwrite: bool =
 
 
 def grow(out, experiments: Dict[str, dict], seeds_per_job: Optional[int],
-         same: Callable[[dict, dict], bool] = lambda a, b: a == b) -> List[Job]:
+         same: Callable[[dict, dict], bool] = lambda a, b: a == b,
+         groups: Optional[Dict[str, int]] = None) -> List[Job]:
     """The jobs of the sweep in ``out`` with the experiments of ``experiments`` that it lacks
     added (a plan that grew: hours of finished jobs are kept, the new ones join them). A
     recorded experiment planned again must be the ``same``; one planned otherwise, or not
@@ -381,7 +393,7 @@ def grow(out, experiments: Dict[str, dict], seeds_per_job: Optional[int],
             + f" (remove those folders of {out} to plan them anew, or choose another --out)")
     added = {k: v for k, v in experiments.items() if k not in recorded}
     kept = [j for j in jobs if j.experiment in recorded]
-    new = plan(added, out, seeds_per_job)
+    new = plan(added, out, seeds_per_job, groups)
     for name in added:
         shutil.rmtree(Path(out) / name, ignore_errors=True)   # a removed experiment's leftovers
     _write_experiments(Path(out), added)

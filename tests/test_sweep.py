@@ -835,3 +835,57 @@ def test_the_plan_estimates_each_experiment_from_the_published_one_like_it(tmp_p
     assert reproduce.estimate(small, tmp_path / "pub")[0][1] == pytest.approx(3 + 2 * 3 * 16 / 30)  # its 2 episodes first
     assert reproduce.main(["--scale", "smoke", "--only", "f16", "--plan", "--experiments", "f16-pd"]) == 0
     assert capsys.readouterr().out.startswith("  f16-pd: 1 seed x 3, ~")
+
+
+def test_a_split_plan_gives_each_experiment_its_seeds_in_consecutive_groups(tmp_path):
+    """10 seeds in 3 jobs: 4, 3, 3 consecutive seeds, each job's config its own seeds; an
+    experiment not named stays one job; more jobs than seeds, or none, is refused."""
+    cfg = resolve_config(env="square", agent="random", seeds=list(range(10, 20)), episodes=1)
+    jobs = sweep.plan({"a": cfg, "b": cfg}, tmp_path, None, {"a": 3})
+    assert [(j.experiment, j.index, j.seeds) for j in jobs] == [
+        ("a", 0, [10, 11, 12, 13]), ("a", 1, [14, 15, 16]), ("a", 2, [17, 18, 19]), ("b", 0, list(range(10, 20)))]
+    assert [Path(j.folder).relative_to(tmp_path).as_posix() for j in jobs] == [
+        "a/jobs/j000", "a/jobs/j001", "a/jobs/j002", "b/jobs/j000"]
+    assert all(j.config["run"]["seeds"] == j.seeds and j.config["run"]["threads"] == 1 for j in jobs)
+    for bad in (0, 11):
+        with pytest.raises(sweep.SweepError, match=f"^a: {bad} jobs for 10 seeds$"):
+            sweep.plan({"a": cfg}, tmp_path, None, {"a": bad})
+
+
+def test_max_job_minutes_splits_each_experiment_estimated_over_it():
+    """20 minutes of one core (1,200 s, each job's start included): an experiment of 3,000 s of
+    steps in 3 jobs (1,200, 900 and 900 s of its 10 seeds' steps), one of 500 s whole, one with no
+    estimate whole; at most one seed a job; without the option, one job each."""
+    cfg = lambda n: resolve_config(env="square", agent="random", seeds=list(range(n)), episodes=1)  # noqa: E731
+    planned = {"long": cfg(10), "short": cfg(4), "unknown": cfg(2)}
+    start = reproduce.JOB_START_S
+    found = [("long", start + 3000.0, "x"), ("short", start + 500.0, "x"), ("unknown", None, "x")]
+    assert reproduce.seed_groups(planned, found, 20) == {"long": 3}
+    assert reproduce.seed_groups(planned, found, None) == {}
+    assert reproduce.seed_groups(planned, found, 0.1) == {"long": 10, "short": 4}
+    assert reproduce.job_seconds(planned, found, {"long": 3}) == pytest.approx(
+        [start + 1200, start + 900, start + 900, start + 500])
+    assert reproduce.job_seconds(planned, found, {}) == pytest.approx([start + 3000, start + 500])
+
+
+def test_reproduce_runs_a_split_experiment_in_its_jobs_and_keeps_them_when_continued(tmp_path, capsys, monkeypatch):
+    """f16-pd (2 seeds) estimated at an hour: --max-job-minutes 40 runs it as two jobs of a seed
+    each, whose rows are the experiment's; --plan says so; continued with another limit, the run
+    keeps the jobs it began with."""
+    real = reproduce.estimate
+    monkeypatch.setattr(reproduce, "estimate", lambda planned, pub: [
+        (n, 3600.0 if n == "f16-pd" else s, how) for n, s, how in real(planned, pub)])
+    args = ["--scale", "quick", "--only", "f16", "--workers", "1", "--experiments", "f16-pd"]
+    assert reproduce.main(args + ["--plan", "--max-job-minutes", "40"]) == 0
+    assert "  f16-pd: 2 seeds x 50, ~60.0 min in 2 jobs (" in capsys.readouterr().out
+    out = tmp_path / "r"
+    assert reproduce.main(args + ["--out", str(out), "--max-job-minutes", "40"]) == 0
+    jobs = sorted((out / "f16-pd" / "jobs").iterdir())
+    assert [json.loads((j / "config.json").read_text())["run"]["seeds"] for j in jobs] == [[10], [11]]
+    rows = pd.read_csv(out / "f16-pd" / "episodes.csv")
+    assert sorted(set(rows.seed)) == [10, 11] and len(rows) == 100
+    assert reproduce.main(args + ["--out", str(out), "--max-job-minutes", "1000"]) == 0
+    assert sorted(p.name for p in (out / "f16-pd" / "jobs").iterdir()) == ["j000", "j001"]
+    with pytest.raises(SystemExit):
+        reproduce.main(args + ["--plan", "--max-job-minutes", "0"])
+    assert "must be a number of minutes > 0, got '0'" in capsys.readouterr().err

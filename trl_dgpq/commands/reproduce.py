@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
+import math
 import json
 import os
 import re
@@ -35,6 +36,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Dict, List, Optional
 
 from trl_dgpq.analysis import count, load_run, ms_per_seed_step
 from trl_dgpq.collectors import runner, sweep
@@ -417,24 +419,56 @@ def job_cost(planned: dict, publication: Path):
     return cost
 
 
+def seed_groups(planned: dict, found: list, max_minutes: Optional[float]) -> Dict[str, int]:
+    """{experiment: jobs} for the experiments whose estimate (``estimate``'s ``found``) is over
+    ``max_minutes`` of one core: the fewest groups of consecutive seeds whose estimated share is
+    within it (at most one seed each). None: every experiment one job."""
+    if max_minutes is None:
+        return {}
+    limit = max_minutes * 60 - JOB_START_S
+    out = {}
+    for name, seconds, _ in found:
+        if seconds is not None and seconds - JOB_START_S > limit:
+            out[name] = min(len(planned[name]["run"]["seeds"]), math.ceil((seconds - JOB_START_S) / limit))
+    return out
+
+
+def job_seconds(planned: dict, found: list, groups: Dict[str, int]) -> List[float]:
+    """The estimated seconds of every job of the experiments with an estimate: an experiment's
+    steps shared by its jobs' seeds (``sweep.plan``'s groups), each job its own start."""
+    out = []
+    for name, seconds, _ in found:
+        if seconds is None:
+            continue
+        config = planned[name]
+        n = len(config["run"]["seeds"])
+        out += [JOB_START_S + (seconds - JOB_START_S) * len(job.seeds) / n
+                for job in sweep.plan({name: config}, "", None, groups)]
+    return out
+
+
 def hours(seconds: float) -> str:
     return f"{seconds / 3600:,.2f} h" if seconds >= 3600 else f"{seconds / 60:.1f} min"
 
 
-def plan_text(planned: dict, publication: Path) -> str:
-    """What ``--plan`` prints: each part's experiments with their estimated time, the total on one
-    core and the makespan on more."""
+def plan_text(planned: dict, publication: Path, max_minutes: Optional[float] = None) -> str:
+    """What ``--plan`` prints: each part's experiments with their estimated time (and jobs, where
+    ``max_minutes`` splits them), the total on one core and the makespan on more."""
     found = estimate(planned, publication)
-    lines, jobs = [], []
+    groups = seed_groups(planned, found, max_minutes)
+    lines = []
     for name, seconds, how in found:
         config = planned[name]["run"]
         size = f"{count(len(config['seeds']), 'seed')} x {config['episodes']:,}"
-        lines.append(f"  {name}: {size}, " + (f"~{seconds / 60:,.1f} min ({how})" if seconds is not None else how))
-        jobs += [seconds] if seconds is not None else []
+        split = f" in {groups[name]} jobs" if name in groups else ""
+        lines.append(f"  {name}: {size}, " + (f"~{seconds / 60:,.1f} min{split} ({how})" if seconds is not None else how))
+    jobs = job_seconds(planned, found, groups)
     unknown = sum(s is None for _, s, _ in found)
     total = sum(jobs)
     cores = ", ".join(f"{n} cores ~{hours(sweep.makespan(jobs, n))}" for n in CLUSTERS) if jobs else "-"
-    return ("\n".join(lines) + f"\n{len(found)} experiments, one job each: ~{hours(total)} of one core"
+    how = (f"{len(jobs) + unknown} jobs (those over {max_minutes:g} min of one core split into seed groups)"
+           if max_minutes is not None else "one job each")
+    return ("\n".join(lines) + f"\n{len(found)} experiments, {how}: ~{hours(total)} of one core"
             + (f" and wall time {cores}, both without the {unknown} not estimated" if unknown else f"; wall time {cores}")
             + " (longest job first; "
             f"times per seed-episode from {publication}, measured on 2 loaded cores)\n")
@@ -505,6 +539,13 @@ def rebuild(folder: Path) -> Path:
     return write_report(folder, stamp["scale"], 0.0, stamp["only"] or None)
 
 
+def positive_minutes(text: str) -> float:
+    value = float(text)
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"must be a number of minutes > 0, got {text!r}")
+    return value
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog=prog("reproduce"), description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -520,6 +561,11 @@ def main(argv=None) -> int:
     p.add_argument("--experiments", nargs="+", default=None, metavar="PATTERN",
                    help="run only the planned experiments these names or shell patterns match (e.g. 'liq-dgpq-*'); "
                         "the plan stays whole, and a later call without it runs the rest")
+    p.add_argument("--max-job-minutes", type=positive_minutes, default=None, metavar="M",
+                   help="split each experiment whose estimate (as --plan's) is over M minutes of one core into "
+                        "the fewest jobs of consecutive seeds within it, which the workers (or a Ray cluster) run "
+                        "apart: the same rows, a shorter wall time on many cores (default: one job each; a "
+                        "reproduction under way keeps the jobs it began with)")
     p.add_argument("--plan", action="store_true",
                    help="run nothing: list the planned experiments with their estimated time (from the published "
                         "runs like each) and the wall time on 2, 16, 64 and 256 cores")
@@ -552,8 +598,7 @@ def main(argv=None) -> int:
             print(f"wrote {args.sweep_file}: {count(len(now), 'experiment')}")
             return 0
         if args.plan:
-            print(plan_text({n: planned[n] for n in now}, PUBLICATION),
-                  end="")
+            print(plan_text({n: planned[n] for n in now}, PUBLICATION, args.max_job_minutes), end="")
             return 0
         if args.report:
             if not (out / sweep.SWEEP).is_file():
@@ -564,12 +609,13 @@ def main(argv=None) -> int:
                 print(f"published {len(publish(out, Path(args.publish), args.scale, args.only))} files to "
                       f"{args.publish}")
             return 0
+        groups = seed_groups(planned, estimate(planned, PUBLICATION), args.max_job_minutes)
         if (out / sweep.SWEEP).is_file():
             # experiments added to the plan since (a new agent, a new domain) join the finished ones
-            jobs = sweep.grow(out, planned, None, same=lambda a, b: same_run(a) == same_run(b))
+            jobs = sweep.grow(out, planned, None, same=lambda a, b: same_run(a) == same_run(b), groups=groups)
             print(f"continuing {out}", flush=True)
         else:
-            jobs = sweep.plan(planned, out, None)
+            jobs = sweep.plan(planned, out, None, groups)
             sweep.create(out, planned, jobs)
         if args.reuse:
             jobs = sweep.reuse(out, jobs, args.reuse, same=lambda a, b: same_config(a) == same_config(b),
