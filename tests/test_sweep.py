@@ -429,11 +429,12 @@ def test_the_time_left_is_weighed_by_each_jobs_planned_steps():
 
 def test_reproduce_weighs_the_time_left_by_each_jobs_estimated_seconds():
     """A job of an experiment the publication estimates costs its start and its share of the
-    estimate's steps (half the seeds: half); one of an experiment it cannot estimate (liquidation,
-    not published) its start and its planned seed-steps at the median seconds per planned seed-step
-    of the estimated ones."""
+    estimate's steps (half the seeds: half); one of an experiment it cannot estimate (the corridor,
+    never published) its start and its planned seed-steps at the median seconds per planned
+    seed-step of the estimated ones."""
     publication = Path(__file__).resolve().parent.parent / "results" / "report"
-    planned = reproduce.experiments("report", ["square-paper-tuned", "liquidation"])
+    planned = {**reproduce.experiments("report", ["square-paper-tuned"]),
+               "walk": resolve_config(env="corridor", agent="random", seeds=[0, 1], episodes=5)}
     estimated = {n: s for n, s, _ in reproduce.estimate(planned, publication) if s is not None}
     assert set(estimated) == {"square-pt-dgpq", "square-pt-dqn", "square-pt-random"}
     cost = reproduce.job_cost(planned, publication)
@@ -441,8 +442,8 @@ def test_reproduce_weighs_the_time_left_by_each_jobs_estimated_seconds():
     start = reproduce.JOB_START_S
     assert cost(half) == pytest.approx(start + (estimated["square-pt-dqn"] - start) / 2)
     rates = sorted((estimated[n] - start) / (20 * 10_000) for n in estimated)   # 20 seeds x the 10,000-step budget
-    twap = sweep.Job("liq-twap", 0, planned["liq-twap"]["run"]["seeds"], "x", planned["liq-twap"])
-    assert cost(twap) == pytest.approx(start + 4 * 11_000 * 60 * rates[1])   # 4 seeds x 11,000 episodes of 60 trades
+    walk = sweep.Job("walk", 0, [0, 1], "x", planned["walk"])
+    assert cost(walk) == pytest.approx(start + 2 * 5 * 50 * rates[1])   # 2 seeds x 5 episodes of at most 50 steps
 
 
 @pytest.mark.slow
