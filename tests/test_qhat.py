@@ -110,3 +110,14 @@ def test_state_round_trips_and_a_wrong_shape_is_refused():
 def test_bad_settings_are_refused_by_name(kw, message):
     with pytest.raises(ValueError, match=message):
         LipschitzQ(1, 1, 1, **{**dict(lipschitz=1.0, v_max=1.0), **kw})
+
+
+def test_one_full_row_among_others_with_room_grows_the_storage():
+    """Capacity 2: seed 0 full, seed 1 empty; one insert into both doubles the storage (seed 0's
+    row has no free slot, whatever seed 1's has), seed 0's pair in its slot 2, seed 1's in slot 0."""
+    q = LipschitzQ(2, 1, 1, lipschitz=1.0, v_max=100.0, capacity=2)
+    a, first = torch.zeros(2, dtype=torch.long), torch.tensor([True, False])
+    q.insert(t([[0.0], [0.0]]), a, t([1.0, 0.0]), first)
+    q.insert(t([[9.0], [0.0]]), a, t([2.0, 0.0]), first)
+    q.insert(t([[20.0], [5.0]]), a, t([3.0, 4.0]), torch.tensor([True, True]))
+    assert q.capacity == 4 and q.mu[:, 0].tolist() == [[1.0, 2.0, 3.0, math.inf], [4.0, math.inf, math.inf, math.inf]]
