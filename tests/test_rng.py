@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from trl_dgpq.rng import ENV_STREAM, LEARNER_STREAM, TIE_STREAM, SeedStreams, box_muller, splitmix64, stream_id
+from trl_dgpq.rng import ENV_STREAM, LEARNER_STREAM, TIE_STREAM, SeedStreams, _signed, box_muller, splitmix64, stream_id
 
 M64 = (1 << 64) - 1
 
@@ -69,9 +69,17 @@ def test_normal_is_box_muller_on_one_uniform_draw_of_twice_the_size():
 
 
 def test_uniform_at_reads_any_draw_of_each_seed_without_moving_the_counter():
+    """Draws 7 and 3000 (an int32 index: 3000 x 2^20 overflows 32 bits), then the counter's draw
+    0; a draw of 2^20 numbers is the most allowed (also for ``uniform``, shown with a limit of 8)."""
     rng = SeedStreams([1, 2], 5)
-    got = rng.uniform_at(torch.tensor([7, 3]), 4)
-    assert got.tolist() == [oracle(1, 5, 7, 4), oracle(2, 5, 3, 4)] and rng.counter == 0
+    got = rng.uniform_at(torch.tensor([7, 3000], dtype=torch.int32), 4)
+    assert got.tolist() == [oracle(1, 5, 7, 4), oracle(2, 5, 3000, 4)] and rng.counter == 0
+    assert rng.uniform_at(torch.tensor([0, 0]), 2 ** 20).shape == (2, 2 ** 20)
+    small = SeedStreams([1], 5)
+    small.MAX_PER_DRAW = 8
+    assert small.uniform(8).shape == (1, 8)
+    with pytest.raises(ValueError, match=r"^at most 8 numbers per draw$"):
+        small.uniform(9)
     assert rng.uniform(2).tolist() == [oracle(1, 5, 0, 2), oracle(2, 5, 0, 2)]
     with pytest.raises(ValueError, match=r"^at most 1048576 numbers per draw$"):
         rng.uniform_at(torch.tensor([0, 0]), 2 ** 20 + 1)
@@ -87,8 +95,23 @@ def test_seed_for_torch_is_the_keys_next_output_in_63_bits():
 
 
 def test_a_stream_id_is_48_bits_of_the_names_blake2_hash_above_2_48():
+    """A named stream's id is part of every result drawn from it: the same in every process and
+    version (corridor.wind's recorded when stream_id was written), above the numbered ids."""
     assert stream_id("td3.explore") == (1 << 48) | int(hashlib.blake2b(b"td3.explore", digest_size=6).hexdigest(), 16)
-    assert stream_id("a") != stream_id("b") and stream_id("a") > 7
+    assert stream_id("corridor.wind") == 545550430812439
+    assert stream_id("a") != stream_id("b") and min(stream_id("a"), stream_id("b")) >= 2 ** 48
+
+
+def test_a_seed_alone_draws_what_it_draws_in_a_batch_across_a_buffer_refill():
+    alone, batch = SeedStreams([3], stream=2), SeedStreams([0, 3, 7], stream=2)
+    for _ in range(SeedStreams.BLOCK + 5):
+        assert torch.equal(alone.uniform(4)[0], batch.uniform(4)[1])
+
+
+def test_the_default_stream_is_0_and_the_signed_constants_wrap():
+    assert SeedStreams([1]).uniform(2).tolist() == [oracle(1, 0, 0, 2)]
+    assert [_signed(c) for c in (0, 5, 2 ** 63 - 1, 2 ** 63, 0x9E3779B97F4A7C15, 2 ** 64 - 1)] == [
+        0, 5, 2 ** 63 - 1, -(2 ** 63), 0x9E3779B97F4A7C15 - 2 ** 64, -1]
 
 
 def test_state_continues_the_stream_and_refuses_another_seeds_or_streams():

@@ -14,8 +14,6 @@ from typing import Sequence
 
 import torch
 
-_M64 = (1 << 64) - 1
-
 # Each consumer draws from its own stream, so one consumer drawing more or less never
 # shifts another's numbers. Ids 1-7 were numbered by hand and stay as they are (results
 # depend on them): 5 is liquidation's price noise (PRICE_STREAM in envs/liquidation/env.py),
@@ -52,14 +50,6 @@ def splitmix64(z: torch.Tensor) -> torch.Tensor:
     z = (z ^ _lsr(z, 30)) * _MIX1
     z = (z ^ _lsr(z, 27)) * _MIX2
     return z ^ _lsr(z, 31)
-
-
-def splitmix64_reference(z: int) -> int:
-    """Pure-Python splitmix64 (unsigned), the oracle for the tensor version."""
-    z = (z + 0x9E3779B97F4A7C15) & _M64
-    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _M64
-    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _M64
-    return z ^ (z >> 31)
 
 
 class SeedStreams:
