@@ -218,3 +218,42 @@ def test_an_old_dotted_path_names_the_setting_it_is_now():
     with pytest.raises(ValueError, match=re.escape("unknown setting 'gp.kernel_lr'") + ".*did you mean 'kernel_lr'"):
         resolve_config(**{"gp.kernel_lr": 0.1})
     assert resolve_config(kernel_lr=0.1)["agent"]["kernel_lr"] == 0.1
+
+
+def test_section5_by_hand_away_from_the_degenerate_values():
+    """GWH14 Section 5 at eps 0.5, delta 0.2, gamma 0.1, R_max 3, L_Q 2, 3 actions, noise 0.2 and a
+    covering of 7 balls (at r = 0.5 x 0.9 / 6 = 0.075): eps1 = 0.15; kappa = 3 x 7 x (9 / (0.81 x
+    0.5) + 1) = 487.667; sigma_tol2 = 2 x 0.2 x 0.25 x 0.6561 / (81 ln(6 x 3 x 7 x 488.667 / 0.2))."""
+    radii = []
+    eps1, tol = section5(0.5, 0.2, 0.1, 3.0, 2.0, 3, 0.2, lambda r: radii.append(r) or 7)
+    assert radii == [pytest.approx(0.075)] and eps1 == pytest.approx(0.15)
+    kappa = 3 * 7 * (9 / (0.81 * 0.5) + 1)
+    assert kappa == pytest.approx(487.6666667)
+    assert tol == pytest.approx(2 * 0.2 * 0.25 * 0.6561 / (81 * math.log(6 * 3 * 7 * (1 + kappa) / 0.2)), rel=1e-12)
+    assert section5(0.5, 0.2, 0.0, 3.0, 2.0, 1, 0.2, lambda r: 7)[0] == pytest.approx(0.5 / 3)  # gamma 0, 1 action
+
+
+@pytest.mark.parametrize("args, message", [
+    ((0.0, 0.2, 0.1, 3.0, 2.0, 3, 0.2), r"^eps must be > 0, got 0.0$"),
+    ((0.5, 0.0, 0.1, 3.0, 2.0, 3, 0.2), r"^delta must be in \(0, 1\), got 0.0$"),
+    ((0.5, 1.0, 0.1, 3.0, 2.0, 3, 0.2), r"^delta must be in \(0, 1\), got 1.0$"),
+    ((0.5, 1.5, 0.1, 3.0, 2.0, 3, 0.2), r"^delta must be in \(0, 1\), got 1.5$"),
+    ((0.5, 0.2, -0.1, 3.0, 2.0, 3, 0.2), r"^Section 5 needs 0 <= gamma < 1 \(got -0.1\); set sigma_tol2 and eps1"),
+    ((0.5, 0.2, 0.1, 0.0, 2.0, 3, 0.2), r"^Section 5 needs r_max > 0, lipschitz > 0, noise_var > 0 and >= 1 action$"),
+    ((0.5, 0.2, 0.1, 3.0, 0.0, 3, 0.2), r"^Section 5 needs r_max > 0, lipschitz > 0, noise_var > 0 and >= 1 action$"),
+    ((0.5, 0.2, 0.1, 3.0, 2.0, 3, 0.0), r"^Section 5 needs r_max > 0, lipschitz > 0, noise_var > 0 and >= 1 action$"),
+    ((0.5, 0.2, 0.1, 3.0, 2.0, 0, 0.2), r"^Section 5 needs r_max > 0, lipschitz > 0, noise_var > 0 and >= 1 action$")])
+def test_section5_refuses_where_its_formulas_are_undefined(args, message):
+    with pytest.raises(ValueError, match=message):
+        section5(*args, lambda r: 7)
+
+
+def test_box_covering_counts_cubes_of_each_width_and_refuses_a_box_that_is_not_finite():
+    """[2, 5] x [1, 1] under L1 at r 0.5: cubes of side 2 x 0.5 / 2 = 0.5, ceil(3 / 0.5) = 6 along
+    the first side, 1 along the flat one."""
+    assert box_covering([2.0, 1.0], [5.0, 1.0], "l1")(0.5) == 6
+    for low, high in (([0.0], [math.inf]), ([0.0], [-1.0]), ([], [])):
+        with pytest.raises(ValueError, match=r"^the state box must be finite, got low=\[.*\], high=\[.*\]$"):
+            box_covering(low, high, "l1")
+    with pytest.raises(ValueError, match=r"^metric must be one of \['l1', 'l2', 'linf'\], got 'l3'$"):
+        box_covering([0.0], [1.0], "l3")
