@@ -158,20 +158,24 @@ def summarise(results: dict) -> None:
 
 # One point of the threads measurement: ms per seed-step over a window of batched steps
 # after a warm-up (learning under way), at the given threads.
-WINDOW = r"""
+CHILD_START = r"""
 import json, sys, time, torch
 spec = json.loads(sys.argv[1])
 torch.set_num_threads(spec["threads"])
 from trl_dgpq.collectors.experiment import build, resolve_config
 from trl_dgpq.collectors.online import OnlineCollector
+"""
+RUN_WINDOW = r"""
 env, agent = build(resolve_config(**spec["config"]))
+S = env.batch_size[0]
 col = OnlineCollector(env, agent, 10 ** 9, progress=False)
 col.max_total_steps = spec["warmup"]
 col.run()
 col.step_seconds.clear()
 col.max_total_steps = spec["window"]
 col.run()
-S = env.batch_size[0]
+"""
+WINDOW = CHILD_START + RUN_WINDOW + r"""
 print(json.dumps(dict(ms_per_seed_step=sum(col.step_seconds) / len(col.step_seconds) / S * 1e3)))
 """
 
@@ -261,14 +265,9 @@ def bench_step_parts(args) -> None:
 # FLOPs / the core's matrix-product peak + the optimiser's memory traffic / the core's bandwidth
 # (Adam reads parameter, gradient and both moments and writes three of them back: 28 bytes per
 # fp32 parameter, the least any Adam can move), both measured in the same child just before.
-BOUND = r"""
-import json, sys, time, torch
-spec = json.loads(sys.argv[1])
-torch.set_num_threads(spec["threads"])
+BOUND = CHILD_START + r"""
 from torch.optim.optimizer import register_optimizer_step_post_hook
 from torch.utils.flop_counter import FlopCounterMode
-from trl_dgpq.collectors.experiment import build, resolve_config
-from trl_dgpq.collectors.online import OnlineCollector
 
 def best(fn, n):
     fn()
@@ -280,14 +279,7 @@ a, b = torch.randn(1024, 1024), torch.randn(1024, 1024)
 peak = 2 * 1024 ** 3 / best(lambda: a @ b, 10)                     # FLOP/s
 big, dst = torch.randn(16 * 2 ** 20), torch.empty(16 * 2 ** 20)    # 64 MiB each
 bandwidth = 2 * big.numel() * 4 / best(lambda: dst.copy_(big), 10)  # bytes/s, read + write
-env, agent = build(resolve_config(**spec["config"]))
-S = env.batch_size[0]
-col = OnlineCollector(env, agent, 10 ** 9, progress=False)
-col.max_total_steps = spec["warmup"]
-col.run()
-col.step_seconds.clear()
-col.max_total_steps = spec["window"]
-col.run()
+""" + RUN_WINDOW + r"""
 wall = sum(col.step_seconds)
 steps = {"n": 0, "params": 0}
 def counted(opt, args, kwargs):
