@@ -864,6 +864,7 @@ def test_max_job_minutes_splits_each_experiment_estimated_over_it():
     assert reproduce.seed_groups(planned, found, 20) == {"long": 3}
     assert reproduce.seed_groups(planned, found, None) == {}
     assert reproduce.seed_groups(planned, found, 0.1) == {"long": 10, "short": 4}
+    assert reproduce.seed_groups(planned, found, 0.01) == {"long": 10, "short": 4}   # under a job's start
     assert reproduce.job_seconds(planned, found, {"long": 3}) == pytest.approx(
         [start + 1200, start + 900, start + 900, start + 500])
     assert reproduce.job_seconds(planned, found, {}) == pytest.approx([start + 3000, start + 500])

@@ -27,8 +27,8 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
-import math
 import json
+import math
 import os
 import re
 import sys
@@ -401,6 +401,12 @@ def estimate(planned: dict, publication: Path) -> list:
     return out
 
 
+def job_share(seconds: float, seeds: int, of: int) -> float:
+    """A job's estimated seconds: its start and its ``seeds`` of ``of`` seeds' share of the
+    experiment's estimated ``seconds`` of steps."""
+    return JOB_START_S + (seconds - JOB_START_S) * seeds / of
+
+
 def job_cost(planned: dict, publication: Path):
     """Job -> its estimated seconds (``estimate``, its share of its experiment's seeds), for the
     sweep's time-left guide; a job of an experiment with no estimate at its planned seed-steps times
@@ -413,8 +419,8 @@ def job_cost(planned: dict, publication: Path):
 
     def cost(job) -> float:
         seconds = estimated.get(job.experiment)
-        if seconds is not None:   # the experiment's steps shared by its jobs' seeds, each job its own start
-            return JOB_START_S + (seconds - JOB_START_S) * len(job.seeds) / len(planned[job.experiment]["run"]["seeds"])
+        if seconds is not None:
+            return job_share(seconds, len(job.seeds), len(planned[job.experiment]["run"]["seeds"]))
         return JOB_START_S + steps(job) * rate
     return cost
 
@@ -425,11 +431,12 @@ def seed_groups(planned: dict, found: list, max_minutes: Optional[float]) -> Dic
     within it (at most one seed each). None: every experiment one job."""
     if max_minutes is None:
         return {}
-    limit = max_minutes * 60 - JOB_START_S
+    limit = max_minutes * 60 - JOB_START_S   # of steps, a job's start apart (none left: a seed a job)
     out = {}
     for name, seconds, _ in found:
         if seconds is not None and seconds - JOB_START_S > limit:
-            out[name] = min(len(planned[name]["run"]["seeds"]), math.ceil((seconds - JOB_START_S) / limit))
+            seeds = len(planned[name]["run"]["seeds"])
+            out[name] = min(seeds, math.ceil((seconds - JOB_START_S) / limit)) if limit > 0 else seeds
     return out
 
 
@@ -442,8 +449,7 @@ def job_seconds(planned: dict, found: list, groups: Dict[str, int]) -> List[floa
             continue
         config = planned[name]
         n = len(config["run"]["seeds"])
-        out += [JOB_START_S + (seconds - JOB_START_S) * len(job.seeds) / n
-                for job in sweep.plan({name: config}, "", None, groups)]
+        out += [job_share(seconds, len(job.seeds), n) for job in sweep.plan({name: config}, "", None, groups)]
     return out
 
 
