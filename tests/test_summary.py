@@ -68,3 +68,10 @@ def test_paired_ratios_over_shared_pairs_and_none_without():
 def test_count_says_one_or_many():
     assert [count(1, "seed"), count(2, "seed"), count(1000, "episode"), count(0, "job")] == [
         "1 seed", "2 seeds", "1,000 episodes", "0 jobs"]
+
+
+def test_a_threshold_is_met_at_its_value():
+    from trl_dgpq.analysis import Threshold
+    at = pd.Series([25.0, 25.5, 24.5])
+    assert Threshold("steps", "<=", 25.0, 10, "").met(at).tolist() == [True, False, True]
+    assert Threshold("return", ">=", 25.0, 10, "").met(at).tolist() == [True, True, False]
