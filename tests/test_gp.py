@@ -420,3 +420,27 @@ def test_a_saved_sparse_gp_holds_only_its_used_slots_and_loads_back_bitwise(tmp_
         assert torch.equal(u, v)
     with pytest.raises(RuntimeError, match="size mismatch"):   # a GP of another budget is refused by name
         SparseOnlineGP(RBFKernel(0.3, 1.0), NOISE, 2, batch_shape=(3,), budget=2).load_state_dict(state)
+
+
+def test_sq_dist_of_near_points_far_from_the_origin_keeps_its_digits():
+    """30 points 1e-3 apart near (1e4, 1e4): the difference form gives each squared distance to
+    1e-12 relative (|a|^2 + |b|^2 - 2ab, cdist's shortcut for many points, loses them)."""
+    from trl_dgpq.gp.kernels import sq_dist
+    x1 = torch.tensor([[1e4, 1e4]], dtype=torch.float64)
+    x2 = x1 + torch.tensor([[1e-3 * (k + 1), 0.0] for k in range(30)], dtype=torch.float64)
+    expect = torch.tensor([[(1e-3 * (k + 1)) ** 2 for k in range(30)]], dtype=torch.float64)
+    torch.testing.assert_close(sq_dist(x1, x2), expect, rtol=1e-9, atol=0)
+
+
+def test_rbf_defaults_dtype_repr_and_refusals():
+    k = RBFKernel()
+    assert (k.lengthscale.item(), k.outputscale.item()) == (1.0, 1.0) and k.raw_lengthscale.dtype == torch.float64
+    assert RBFKernel(dtype=torch.float32).raw_outputscale.dtype == torch.float32
+    assert repr(RBFKernel(0.5, 2.0)) == "RBFKernel(lengthscale=0.5, outputscale=2)"
+    assert repr(RBFKernel(batch_shape=(3,))) == "RBFKernel(batch_shape=(3,))"
+    with pytest.raises(ValueError, match=r"^lengthscale must be a finite positive number, got 0.0$"):
+        RBFKernel(lengthscale=0.0)
+    with pytest.raises(ValueError, match=r"^outputscale must be a finite positive number, got -1.0$"):
+        RBFKernel(outputscale=-1.0)
+    with pytest.raises(ValueError, match=r"^rows must be 1-D flat GP indices, got shape \(2, 1\)$"):
+        RBFKernel(batch_shape=(3,)).select(torch.tensor([[0], [1]]))
