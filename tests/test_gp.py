@@ -444,3 +444,41 @@ def test_rbf_defaults_dtype_repr_and_refusals():
         RBFKernel(outputscale=-1.0)
     with pytest.raises(ValueError, match=r"^rows must be 1-D flat GP indices, got shape \(2, 1\)$"):
         RBFKernel(batch_shape=(3,)).select(torch.tensor([[0], [1]]))
+
+
+def test_the_factory_builds_what_the_config_says():
+    """make_gp hands the sparse GP its budget and novelty threshold, the exact GP its capacity;
+    make_kernel the RBF its scales, the manifold kernel its scales, skip and each seed's own
+    kernel stream (draws laid out GP-major within a seed)."""
+    from trl_dgpq.gp import GPConfig, make_gp, make_kernel
+    from trl_dgpq.rng import KERNEL_STREAM, SeedStreams
+    sparse = make_gp(GPConfig(budget=7, novelty_tol=0.5), 2, (3,), RBFKernel())
+    assert isinstance(sparse, SparseOnlineGP) and (sparse.budget, sparse.novelty_tol) == (7, 0.5)
+    exact = make_gp(GPConfig(backend="exact", capacity=5), 2, (3,), RBFKernel())
+    assert isinstance(exact, ExactGP) and exact.capacity == 5
+    rbf = make_kernel(GPConfig(lengthscale=0.3, outputscale=2.0), 2, [0], 1)
+    assert type(rbf) is RBFKernel and rbf.batch_shape == () and rbf.lengthscale.item() == pytest.approx(0.3) and rbf.outputscale.item() == pytest.approx(2.0)
+    cfg = GPConfig(backend="exact", kernel="manifold", lengthscale=0.3, outputscale=2.0, kernel_hidden=(4,))
+    got = make_kernel(cfg, 2, [5, 9], 2)
+    assert got.skip and got.lengthscale[0].item() == pytest.approx(0.3) and got.outputscale[0].item() == pytest.approx(2.0)
+    streams = SeedStreams([5, 9], stream=KERNEL_STREAM)
+    expect = ManifoldKernel(4, 2, (4,), 0.3, 2.0, skip=True,
+                            uniform=lambda n, count: streams.uniform(2 * count).reshape(n, count))
+    assert all(torch.equal(a, b) for a, b in zip(got.parameters(), expect.parameters()))
+    assert not make_kernel(GPConfig(backend="exact", kernel="manifold", kernel_skip=False), 2, [5], 1).skip
+
+
+def test_bytes_per_gp_by_hand():
+    """Sparse, budget 100, 2-D: m = 101 slots, basis m x 2 + alpha m + C and Q m x m, float64:
+    8 (202 + 101 + 20,402) = 165,640. Exact, capacity 64: 8 x 64 (2 + 2 + 64) = 34,816."""
+    from trl_dgpq.gp import GPConfig
+    assert GPConfig(budget=100).bytes_per_gp(2) == 165_640
+    assert GPConfig(backend="exact", capacity=64).bytes_per_gp(2) == 34_816
+    with pytest.raises(ValueError, match=r"^kernel 'manifold' trains on the GP's data, which only gp 'exact' keeps: "
+                                         r"use --gp exact$"):
+        GPConfig(kernel="manifold").cross_check()
+
+
+def test_likelihood_repr():
+    from trl_dgpq.gp.likelihood import GaussianLikelihood
+    assert repr(GaussianLikelihood(0.1, (3,))) == "GaussianLikelihood(batch_shape=(3,))"
