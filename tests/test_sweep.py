@@ -435,9 +435,10 @@ def test_reproduce_weighs_the_time_left_by_each_jobs_estimated_seconds():
     publication = Path(__file__).resolve().parent.parent / "results" / "report"
     planned = {**reproduce.experiments("report", ["square-paper-tuned"]),
                "walk": resolve_config(env="corridor", agent="random", seeds=[0, 1], episodes=5)}
-    estimated = {n: s for n, s, _ in reproduce.estimate(planned, publication) if s is not None}
+    found = reproduce.estimate(planned, publication)
+    estimated = {n: s for n, s, _ in found if s is not None}
     assert set(estimated) == {"square-pt-dgpq", "square-pt-dqn", "square-pt-random"}
-    cost = reproduce.job_cost(planned, publication)
+    cost = reproduce.job_cost(planned, found)
     half = sweep.Job("square-pt-dqn", 0, planned["square-pt-dqn"]["run"]["seeds"][:10], "x", planned["square-pt-dqn"])
     start = reproduce.JOB_START_S
     assert cost(half) == pytest.approx(start + (estimated["square-pt-dqn"] - start) / 2)

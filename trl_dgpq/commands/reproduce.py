@@ -407,11 +407,11 @@ def job_share(seconds: float, seeds: int, of: int) -> float:
     return JOB_START_S + (seconds - JOB_START_S) * seeds / of
 
 
-def job_cost(planned: dict, publication: Path):
-    """Job -> its estimated seconds (``estimate``, its share of its experiment's seeds), for the
-    sweep's time-left guide; a job of an experiment with no estimate at its planned seed-steps times
+def job_cost(planned: dict, found: list):
+    """Job -> its estimated seconds (``estimate``'s ``found``, its share of its experiment's seeds), for
+    the sweep's time-left guide; a job of an experiment with no estimate at its planned seed-steps times
     the median seconds per planned seed-step of those with one (all at their seed-steps if none has)."""
-    estimated = {name: seconds for name, seconds, _ in estimate(planned, publication) if seconds is not None}
+    estimated = {name: seconds for name, seconds, _ in found if seconds is not None}
     steps = sweep.planned_seed_steps
     rates = sorted((estimated[n] - JOB_START_S) / steps(sweep.Job(n, 0, planned[n]["run"]["seeds"], "", planned[n]))
                    for n in estimated)
@@ -615,7 +615,8 @@ def main(argv=None) -> int:
                 print(f"published {len(publish(out, Path(args.publish), args.scale, args.only))} files to "
                       f"{args.publish}")
             return 0
-        groups = seed_groups(planned, estimate(planned, PUBLICATION), args.max_job_minutes)
+        found = estimate(planned, PUBLICATION)   # read once (seconds of published data): the split and the guide
+        groups = seed_groups(planned, found, args.max_job_minutes)
         if (out / sweep.SWEEP).is_file():
             # experiments added to the plan since (a new agent, a new domain) join the finished ones
             jobs = sweep.grow(out, planned, None, same=lambda a, b: same_run(a) == same_run(b), groups=groups)
@@ -632,7 +633,7 @@ def main(argv=None) -> int:
               flush=True)
         t0 = time.perf_counter()
         report = sweep.execute(out, jobs, "local", args.workers, log=lambda line: print(line, flush=True),
-                               cost=job_cost(planned, PUBLICATION))
+                               cost=job_cost(planned, found))
         if sweep.exit_code(report, "the same command"):
             return 1
         path = write_report(out, args.scale, time.perf_counter() - t0, args.only)
