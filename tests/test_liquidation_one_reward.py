@@ -1,0 +1,123 @@
+"""Liquidation on one reward (envs/liquidation/one_reward.py): its studies' command lines, the
+windows of its two budgets on runs whose values are known, and its claims' verdicts."""
+import pandas as pd
+import pytest
+
+from trl_dgpq.analysis.claims import MET, NOT_MET, UNDECIDED, judge
+from trl_dgpq.analysis.runs import Run
+from trl_dgpq.envs.liquidation import one_reward as o
+
+SEEDS = list(range(50, 60))
+
+
+def frame(cost, seeds=SEEDS, episodes=5000, steps=60, noise_free=None) -> pd.DataFrame:
+    """Rows of seeds x episodes; ``cost(seed, episode)`` the paired cost ratio; ``steps`` per episode
+    (or a function of the episode)."""
+    rows = [dict(seed=s, episode=e, steps=steps(e) if callable(steps) else steps, wall_s=0.06,
+                 cost_ratio=cost(s, e), noise_free_cost_ratio=(noise_free or cost)(s, e))
+            for s in seeds for e in range(1, episodes + 1)]
+    return pd.DataFrame(rows)
+
+
+def test_the_steps_budget_is_each_seeds_last_50_episodes_ended_by_its_18000th_step():
+    # episodes of 60 steps: 300 end by step 18,000, the last 50 are 251-300
+    got = o.in_budget(frame(lambda s, e: e, seeds=[50, 51], episodes=400), "steps")
+    assert sorted(got[got.seed == 50].episode) == list(range(251, 301))
+    # seed 51 at 59 steps an episode for its first 100 (5,900): episode 301 ends at step 17,960, 302 at 18,020
+    uneven = frame(lambda s, e: e, seeds=[51], episodes=400, steps=lambda e: 59 if e <= 100 else 60)
+    assert list(o.in_budget(uneven, "steps").episode) == list(range(252, 302))
+    # an episode ending exactly on step 18,000 counts; one ending a step after does not
+    assert o.in_budget(frame(lambda s, e: e, seeds=[52], episodes=300), "steps").episode.max() == 300
+    assert o.per_seed(frame(lambda s, e: float(e), seeds=[53], episodes=310), "steps")[0] == pytest.approx(275.5)
+
+
+def test_the_episodes_budget_is_the_last_1000_of_5000_and_a_short_seed_is_refused():
+    got = o.in_budget(frame(lambda s, e: e, seeds=[50], episodes=5000), "episodes")
+    assert (got.episode.min(), got.episode.max(), len(got)) == (4001, 5000, 1000)
+    assert list(o.in_budget(frame(lambda s, e: e, seeds=[50], episodes=100), "episodes").episode) == \
+        list(range(51, 101))                                               # a small scale: its second half
+    with pytest.raises(ValueError, match="short of 18,000"):
+        o.in_budget(frame(lambda s, e: e, seeds=[50], episodes=299), "steps")
+    ragged = pd.concat([frame(lambda s, e: e, seeds=[50], episodes=5000), frame(lambda s, e: e, seeds=[51],
+                                                                                episodes=4000)])
+    with pytest.raises(ValueError, match="different episodes"):
+        o.in_budget(ragged, "episodes")
+
+
+def test_every_study_runs_the_same_protocol_from_its_learners_shortfall_preset():
+    from trl_dgpq.commands.tune import make_parser
+    from trl_dgpq.selection import REPORTING, as_seeds
+    assert len(o.STUDIES) == 8 and {(w, r) for _, w, r in o.STUDIES} == {(w, r) for w in o.LEARNERS for r in o.REWARDS}
+    parsed = {s: make_parser().parse_args(o.study_command(s, w, r)) for s, w, r in o.STUDIES}
+    for (study, who, reward), args in zip(o.STUDIES, parsed.values()):
+        assert (args.agent, args.reward, args.preset, args.write_preset) == (who, reward, "shortfall",
+                                                                            f"{reward}-validated")
+        assert (args.trials, args.env_steps, args.window, args.validate, args.objective) == \
+            ("30", "18000", "50", 3, "measure")
+        assert not set(as_seeds(args.seeds) + as_seeds(args.validation_seeds)) & set(REPORTING)
+        assert args.out.endswith(study)
+    td3 = parsed["liq1-td3-impact"]
+    assert td3.actor_hidden == td3.critic_hidden == "24,48"       # DDPG's widths
+    assert parsed["liq1-ddpg-impact"].actor_hidden is None
+
+
+def test_the_plan_runs_each_learner_on_each_reward_with_its_studys_preset():
+    names = [n for n, *_ in o.REPRODUCE]
+    assert len(names) == len(set(names)) == 8 + 2 + 2
+    assert dict((n, s) for n, s in o.REPRODUCE)["liq1-ddpg-impact"] == dict(agent="ddpg", preset="impact-validated")
+    assert o.FIRST_SEED == 50 and o.SCALES["report"] == (10, 5000)
+
+
+def runs_with(cost) -> dict:
+    """Every planned experiment on seeds 50-59 for 5,000 episodes, ``cost(name, seed, episode)``."""
+    out = {}
+    for n, settings in o.REPRODUCE:
+        reward = "impact" if n.endswith("-impact") or n.endswith(("-flat", "-steady")) else "shortfall"
+        config = {"run": dict(env="liquidation", agent=settings["agent"], preset=settings.get("preset", "shortfall"),
+                              seeds=SEEDS), "env": dict(reward=reward), "agent": {}}
+        out[n] = Run(None, frame(lambda s, e, n=n: cost(n, s, e)), config)
+    return out
+
+
+def test_the_claims_judge_each_pair_in_its_budgets_window():
+    # DGPQ costs 1.05 throughout; DQN 1.20; DDPG 1.5 at first and 1.01 after episode 300 (worse at the
+    # steps budget, better at 5,000 episodes); TD3 ties DGPQ seed for seed but for one seed; impact runs
+    # cost 0.02 less than their shortfall twins, seed for seed
+    base = {"dgpq": lambda s, e: 1.05, "dqn": lambda s, e: 1.20, "ddpg": lambda s, e: 1.5 if e <= 300 else 1.01,
+            "td3": lambda s, e: 1.05 + (0.01 if s % 2 else -0.01)}
+
+    def cost(n, s, e):
+        who = n.removeprefix("liq1-").split("-")[0]
+        impact = -0.02 if n.endswith("-impact") else 0.0
+        return base[who](s, e) + impact + 1e-4 * s if who in base else 1.0
+
+    runs = runs_with(cost)
+    got = {j.claim.key: j for j in (judge(c, runs, "report", set(runs)) for c in o.declared_claims())}
+    assert len(got) == 20
+    for reward in o.REWARDS:
+        assert got[f"liquidation-reward/{reward}/steps/dgpq-vs-dqn"].verdict == MET
+        assert got[f"liquidation-reward/{reward}/steps/dgpq-vs-ddpg"].verdict == MET
+        assert got[f"liquidation-reward/{reward}/episodes/dgpq-vs-ddpg"].verdict == NOT_MET
+        assert got[f"liquidation-reward/{reward}/episodes/dgpq-vs-td3"].verdict == UNDECIDED
+    for who in o.LEARNERS:
+        assert got[f"liquidation-reward/{who}/episodes/impact-vs-shortfall"].verdict == MET
+    # the impact runs use the model: their claims are variants, the shortfall ones are not
+    assert got["liquidation-reward/impact/steps/dgpq-vs-dqn"].variant
+    assert got["liquidation-reward/dqn/steps/impact-vs-shortfall"].variant
+    assert not got["liquidation-reward/shortfall/steps/dgpq-vs-dqn"].variant
+
+
+def test_the_section_names_the_lowest_learner_per_reward_and_budget(tmp_path):
+    runs = runs_with(lambda n, s, e: {"dgpq": 1.05, "dqn": 1.2, "ddpg": 1.3 if e <= 300 else 1.01, "td3": 1.4}
+                     .get(n.removeprefix("liq1-").split("-")[0], 1.0) + 1e-4 * s)
+    text = o.reproduce_section(runs, tmp_path, "label", "title", [])
+    assert "at 18,000 env steps (last 50 episodes): on shortfall, DGPQ (P(improves on DQN, the next) 1.00" in text
+    assert "at 5,000 episodes (last 1,000): on shortfall, DDPG (P(improves on DGPQ, the next) 1.00" in text
+    assert "| ddpg-impact | impact | impact-validated | 1.305 [1.305, 1.306] | 1.305 [1.305, 1.306] | 1.015 " in text
+
+
+def test_the_domain_page_shows_a_studys_line_as_the_module_writes_it():
+    import shlex
+    from pathlib import Path
+    page = (Path(__file__).parents[1] / "docs" / "domains" / "liquidation.md").read_text()
+    assert "python scripts/tune.py " + shlex.join(o.study_command("liq1-dqn-impact", "dqn", "impact")) in page
