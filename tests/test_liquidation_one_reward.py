@@ -1,5 +1,6 @@
 """Liquidation on one reward (envs/liquidation/one_reward.py): its studies' command lines, the
 windows of its two budgets on runs whose values are known, and its claims' verdicts."""
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -10,13 +11,13 @@ from trl_dgpq.envs.liquidation import one_reward as o
 SEEDS = list(range(50, 60))
 
 
-def frame(cost, seeds=SEEDS, episodes=5000, steps=60, noise_free=None) -> pd.DataFrame:
-    """Rows of seeds x episodes; ``cost(seed, episode)`` the paired cost ratio; ``steps`` per episode
-    (or a function of the episode)."""
-    rows = [dict(seed=s, episode=e, steps=steps(e) if callable(steps) else steps, wall_s=0.06,
-                 cost_ratio=cost(s, e), noise_free_cost_ratio=(noise_free or cost)(s, e))
-            for s in seeds for e in range(1, episodes + 1)]
-    return pd.DataFrame(rows)
+def frame(cost, seeds=SEEDS, episodes=5000, steps=60) -> pd.DataFrame:
+    """Rows of seeds x episodes; ``cost(seed, episode)`` (arrays) the paired cost ratio, the noise-free
+    one 0.5 above it; ``steps`` per episode (or a function of the episodes)."""
+    s, e = (a.ravel() for a in np.meshgrid(seeds, np.arange(1, episodes + 1), indexing="ij"))
+    c = np.broadcast_to(np.asarray(cost(s, e), dtype=float), s.shape)
+    return pd.DataFrame(dict(seed=s, episode=e, steps=steps(e) if callable(steps) else steps, wall_s=0.06,
+                             cost_ratio=c, noise_free_cost_ratio=c + 0.5))
 
 
 def test_the_steps_budget_is_each_seeds_last_50_episodes_ended_by_its_18000th_step():
@@ -24,11 +25,11 @@ def test_the_steps_budget_is_each_seeds_last_50_episodes_ended_by_its_18000th_st
     got = o.in_budget(frame(lambda s, e: e, seeds=[50, 51], episodes=400), "steps")
     assert sorted(got[got.seed == 50].episode) == list(range(251, 301))
     # seed 51 at 59 steps an episode for its first 100 (5,900): episode 301 ends at step 17,960, 302 at 18,020
-    uneven = frame(lambda s, e: e, seeds=[51], episodes=400, steps=lambda e: 59 if e <= 100 else 60)
+    uneven = frame(lambda s, e: e, seeds=[51], episodes=400, steps=lambda e: np.where(e <= 100, 59, 60))
     assert list(o.in_budget(uneven, "steps").episode) == list(range(252, 302))
     # an episode ending exactly on step 18,000 counts; one ending a step after does not
     assert o.in_budget(frame(lambda s, e: e, seeds=[52], episodes=300), "steps").episode.max() == 300
-    assert o.per_seed(frame(lambda s, e: float(e), seeds=[53], episodes=310), "steps")[0] == pytest.approx(275.5)
+    assert o.per_seed(frame(lambda s, e: e * 1.0, seeds=[53], episodes=310), "steps")[0] == pytest.approx(275.5)
 
 
 def test_the_episodes_budget_is_the_last_1000_of_5000_and_a_short_seed_is_refused():
@@ -83,8 +84,8 @@ def test_the_claims_judge_each_pair_in_its_budgets_window():
     # DGPQ costs 1.05 throughout; DQN 1.20; DDPG 1.5 at first and 1.01 after episode 300 (worse at the
     # steps budget, better at 5,000 episodes); TD3 ties DGPQ seed for seed but for one seed; impact runs
     # cost 0.02 less than their shortfall twins, seed for seed
-    base = {"dgpq": lambda s, e: 1.05, "dqn": lambda s, e: 1.20, "ddpg": lambda s, e: 1.5 if e <= 300 else 1.01,
-            "td3": lambda s, e: 1.05 + (0.01 if s % 2 else -0.01)}
+    base = {"dgpq": lambda s, e: 1.05, "dqn": lambda s, e: 1.20, "ddpg": lambda s, e: np.where(e <= 300, 1.5, 1.01),
+            "td3": lambda s, e: 1.05 + np.where(s % 2, 0.01, -0.01)}
 
     def cost(n, s, e):
         who = n.removeprefix("liq1-").split("-")[0]
@@ -108,12 +109,12 @@ def test_the_claims_judge_each_pair_in_its_budgets_window():
 
 
 def test_the_section_names_the_lowest_learner_per_reward_and_budget(tmp_path):
-    runs = runs_with(lambda n, s, e: {"dgpq": 1.05, "dqn": 1.2, "ddpg": 1.3 if e <= 300 else 1.01, "td3": 1.4}
+    runs = runs_with(lambda n, s, e: {"dgpq": 1.05, "dqn": 1.2, "ddpg": np.where(e <= 300, 1.3, 1.01), "td3": 1.4}
                      .get(n.removeprefix("liq1-").split("-")[0], 1.0) + 1e-4 * s)
     text = o.reproduce_section(runs, tmp_path, "label", "title", [])
     assert "at 18,000 env steps (last 50 episodes): on shortfall, DGPQ (P(improves on DQN, the next) 1.00" in text
     assert "at 5,000 episodes (last 1,000): on shortfall, DDPG (P(improves on DGPQ, the next) 1.00" in text
-    assert "| ddpg-impact | impact | impact-validated | 1.305 [1.305, 1.306] | 1.305 [1.305, 1.306] | 1.015 " in text
+    assert "| ddpg-impact | impact | impact-validated | 1.305 [1.305, 1.306] | 1.805 [1.805, 1.806] | 1.015 [1.015, 1.016] | 1.515 " in text
 
 
 def test_the_domain_page_shows_a_studys_line_as_the_module_writes_it():

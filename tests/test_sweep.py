@@ -10,6 +10,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -445,6 +446,43 @@ def test_reproduce_weighs_the_time_left_by_each_jobs_estimated_seconds():
     rates = sorted((estimated[n] - start) / (20 * 10_000) for n in estimated)   # 20 seeds x the 10,000-step budget
     walk = sweep.Job("walk", 0, [0, 1], "x", planned["walk"])
     assert cost(walk) == pytest.approx(start + 2 * 5 * 50 * rates[1])   # 2 seeds x 5 episodes of at most 50 steps
+
+
+def test_a_begun_job_is_estimated_by_its_own_episode_times(tmp_path):
+    """Episodes 1-100 of 3 seeds done, each episode's batch 0.1 e seconds (0.1 e / 3 a seed-row): the
+    line through the second half is t = 0.1 e, so episodes 101-200 take 0.1 (20,100 - 5,050) = 1,505 s
+    (a mean of the episodes done would say 505); an env-step budget: its steps left at its time per
+    step over the second half; finished: 0; no episodes yet: no own estimate."""
+    out = tmp_path / "s"
+    plan = {"a": resolve_config(env="corridor", agent="constant", seeds=[0, 1, 2], episodes=200),
+            "b": resolve_config(env="corridor", agent="constant", seeds=[0, 1, 2], episodes=1000, env_steps=3000),
+            "c": resolve_config(env="corridor", agent="constant", seeds=[3], episodes=1)}
+    jobs = sweep.plan(plan, out, None)
+    sweep.create(out, plan, jobs)
+    folders = {j.experiment: Path(j.folder) for j in jobs}
+    e = np.repeat(np.arange(1, 101), 3)
+    rows = pd.DataFrame(dict(seed=np.tile([0, 1, 2], 100), episode=e, steps=10, wall_s=0.1 * e / 3))
+    folders["a"].mkdir(parents=True)
+    rows.to_csv(folders["a"] / "episodes.csv", index=False)
+    start = reproduce.JOB_START_S
+    assert reproduce.seconds_left(str(folders["a"]), plan["a"]["run"]) == pytest.approx(start + 1505)
+    # a seed behind the others: its episode is not yet counted as done
+    rows.iloc[:-1].to_csv(folders["a"] / "episodes.csv", index=False)
+    assert reproduce.seconds_left(str(folders["a"]), plan["a"]["run"]) == pytest.approx(
+        start + 0.1 * (20100 - 4950))
+    # budget of 3,000 steps: 1,000 ran (100 x 10); the second half (episodes 51-100) took 0.1 x 3,775 s for
+    # 500 steps: 2,000 steps left at 0.755 s each
+    folders["b"].mkdir(parents=True)
+    rows.to_csv(folders["b"] / "episodes.csv", index=False)
+    assert reproduce.seconds_left(str(folders["b"]), plan["b"]["run"]) == pytest.approx(start + 2000 * 0.755)
+    sweep.execute(out, [j for j in jobs if j.experiment == "c"], "local", 1, log=lambda line: None)
+    assert reproduce.seconds_left(str(folders["c"]), plan["c"]["run"]) == 0.0
+    begun = reproduce.begun(out, plan)
+    assert set(begun) == {"a", "b", "c"} and begun["c"] == [(1, 0.0)]
+    assert reproduce.seconds_left(str(tmp_path / "none"), plan["a"]["run"]) is None
+    text = reproduce.plan_text(plan, tmp_path / "no-publication", out=out)
+    assert f"a: 3 seeds x 200, ~{(start + 0.1 * (20100 - 4950)) / 60:,.1f} min left (begun in {out}" in text
+    assert f"c: 1 seed x 1, finished in {out}" in text and "3 of them begun" in text
 
 
 @pytest.mark.slow

@@ -453,28 +453,86 @@ def job_seconds(planned: dict, found: list, groups: Dict[str, int]) -> List[floa
     return out
 
 
+def seconds_left(folder: str, run: dict) -> Optional[float]:
+    """A begun job's time left by its own episodes: 0 if finished; None if it has no episodes yet. Its
+    batch time per episode (every seed's ``wall_s``), fitted by a line over the second half of the
+    episodes all its seeds ran, summed over the episodes left: an F-16 DGPQ job without a potential
+    pays a little more each episode as its Q̂ grows, which a mean would miss. A job with an env-step
+    budget: its steps left at its time per step over that second half."""
+    import numpy as np
+    import pandas as pd
+    folder = runner.RunFolder(folder)
+    if folder.finished():
+        return 0.0
+    try:
+        df = pd.read_csv(folder.path / runner.EPISODES, usecols=["seed", "episode", "steps", "wall_s"])
+    except (FileNotFoundError, pd.errors.EmptyDataError):
+        return None
+    per = df.groupby("episode").agg(seeds=("seed", "nunique"), steps=("steps", "max"), wall_s=("wall_s", "sum"))
+    per = per[per.seeds == len(run["seeds"])]
+    if per.empty:
+        return None
+    done = int(per.index.max())
+    late = per[per.index > done // 2]
+    if run.get("env_steps"):
+        steps_left = max(0.0, run["env_steps"] - float(per.steps.sum()))
+        return JOB_START_S + steps_left * float(late.wall_s.sum() / late.steps.sum())
+    e, t = late.index.to_numpy(float), late.wall_s.to_numpy(float)
+    slope = max(0.0, float(np.polyfit(e, t, 1)[0])) if len(e) >= 4 else 0.0
+    level = float(t.mean() - slope * e.mean())         # the line through the mean at that slope
+    first, last = done + 1, run["episodes"]
+    if last < first:
+        return JOB_START_S
+    n = last - first + 1
+    return JOB_START_S + max(0.0, n * level + slope * (last * (last + 1) - done * (done + 1)) / 2)
+
+
+def begun(out: Path, planned: dict) -> Dict[str, list]:
+    """{experiment: [(seeds, seconds left) of each of its jobs (``seconds_left``)]} of the planned
+    experiments a reproduction in ``out`` has begun (its sweep's jobs); {} if none is there."""
+    if not (out / sweep.SWEEP).is_file():
+        return {}
+    _, jobs = sweep.load(out)
+    got: Dict[str, list] = {}
+    for job in jobs:
+        if job.experiment in planned:
+            got.setdefault(job.experiment, []).append((len(job.seeds), seconds_left(job.folder, job.config["run"])))
+    return {name: left for name, left in got.items() if any(s is not None for _, s in left)}
+
+
 def hours(seconds: float) -> str:
     return f"{seconds / 3600:,.2f} h" if seconds >= 3600 else f"{seconds / 60:.1f} min"
 
 
-def plan_text(planned: dict, publication: Path, max_minutes: Optional[float] = None) -> str:
+def plan_text(planned: dict, publication: Path, max_minutes: Optional[float] = None, out: Optional[Path] = None) -> str:
     """What ``--plan`` prints: each part's experiments with their estimated time (and jobs, where
-    ``max_minutes`` splits them), the total on one core and the makespan on more."""
+    ``max_minutes`` splits them), the total on one core and the makespan on more. With ``out``, a
+    reproduction under way there: an experiment it has begun counts its time left by its own
+    episodes (``begun``) in place of the estimate, a job not yet started at its share of it."""
     found = estimate(planned, publication)
     groups = seed_groups(planned, found, max_minutes)
-    lines = []
+    own = begun(out, planned) if out is not None else {}
+    lines, jobs = [], []
     for name, seconds, how in found:
         config = planned[name]["run"]
         size = f"{count(len(config['seeds']), 'seed')} x {config['episodes']:,}"
+        if name in own:   # a job not started yet: its share of the estimate (none: not counted)
+            left = [s if s is not None else job_share(seconds, n, len(config["seeds"])) if seconds is not None else 0.0
+                    for n, s in own[name]]
+            jobs += [s for s in left if s > 0]
+            lines.append(f"  {name}: {size}, " + (f"~{sum(left) / 60:,.1f} min left (begun in {out}: by its own "
+                                                  "episode times)" if sum(left) else f"finished in {out}"))
+            continue
         split = f" in {groups[name]} jobs" if name in groups else ""
         lines.append(f"  {name}: {size}, " + (f"~{seconds / 60:,.1f} min{split} ({how})" if seconds is not None else how))
-    jobs = job_seconds(planned, found, groups)
-    unknown = sum(s is None for _, s, _ in found)
+        jobs += job_seconds(planned, [(name, seconds, how)], groups)
+    unknown = sum(s is None and name not in own for name, s, _ in found)
     total = sum(jobs)
     cores = ", ".join(f"{n} cores ~{hours(sweep.makespan(jobs, n))}" for n in CLUSTERS) if jobs else "-"
     how = (f"{len(jobs) + unknown} jobs (those over {max_minutes:g} min of one core split into seed groups)"
            if max_minutes is not None else "one job each")
-    return ("\n".join(lines) + f"\n{len(found)} experiments, {how}: ~{hours(total)} of one core"
+    left = f" left, {len(own)} of them begun in {out} (those by their own episodes)" if own else ""
+    return ("\n".join(lines) + f"\n{len(found)} experiments, {how}: ~{hours(total)} of one core{left}"
             + (f" and wall time {cores}, both without the {unknown} not estimated" if unknown else f"; wall time {cores}")
             + " (longest job first; "
             f"times per seed-episode from {publication}, measured on 2 loaded cores)\n")
@@ -574,7 +632,8 @@ def main(argv=None) -> int:
                         "reproduction under way keeps the jobs it began with)")
     p.add_argument("--plan", action="store_true",
                    help="run nothing: list the planned experiments with their estimated time (from the published "
-                        "runs like each) and the wall time on 2, 16, 64 and 256 cores")
+                        "runs like each; one begun in --out, by its own episodes' times) and the wall time on 2, 16, "
+                        "64 and 256 cores")
     p.add_argument("--sweep-file", default=None, metavar="FILE",
                    help="run nothing: write the planned experiments (those --experiments picks, if given) as a sweep "
                         "file for `trl-dgpq sweep`, the same configs")
@@ -604,7 +663,7 @@ def main(argv=None) -> int:
             print(f"wrote {args.sweep_file}: {count(len(now), 'experiment')}")
             return 0
         if args.plan:
-            print(plan_text({n: planned[n] for n in now}, PUBLICATION, args.max_job_minutes), end="")
+            print(plan_text({n: planned[n] for n in now}, PUBLICATION, args.max_job_minutes, out), end="")
             return 0
         if args.report:
             if not (out / sweep.SWEEP).is_file():
