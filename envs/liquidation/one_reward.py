@@ -30,7 +30,10 @@ P(improvement) against 0.5, lower cost better): at each budget and on each rewar
 on DQN), on DDPG and on TD3 (12); and at each budget, for each learner, P(it trained on ``impact``
 improves on it trained on ``shortfall``): what the model-based reward buys it (8). The claims on
 the impact reward use the model and are counted apart. Which learner is best at each budget is
-read off the table of IQMs and these intervals (not a claim).
+read off the table of IQMs and these intervals (not a claim). The table adds the noise-free cost
+ratio (the expected cost of the trades played) at both budgets, each seed's worst block of 500
+episodes after episode 1,000 over its best (noise-free; the drift goal's measure) and the wall
+time per seed-step.
 """
 from __future__ import annotations
 
@@ -39,7 +42,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from trl_dgpq.analysis import ms_per_seed_step, seed_means
+from trl_dgpq.analysis import ms_per_seed_step
 
 LEARNERS = ("dgpq", "dqn", "ddpg", "td3")
 RIVALS = ("dqn", "ddpg", "td3")
@@ -48,6 +51,7 @@ HAND_SET = ("flat", "steady")               # DGPQ's impact presets of earlier s
 FIRST_SEED = 50
 STEPS, STEP_WINDOW = 18_000, 50             # the studies' budget and window
 EPISODES, LAST = 5_000, 1_000
+BLOCK, SETTLE = 500, 1_000                  # the drift goal's blocks: the worst after episode 1,000 over the best
 BUDGETS = {"steps": f"{STEPS:,} env steps (last {STEP_WINDOW} episodes)",
            "episodes": f"{EPISODES:,} episodes (last {LAST:,})"}
 MEASURES = {"cost_ratio": "paired ac_cost / U*", "noise_free_cost_ratio": "noise-free ac_cost / U*"}
@@ -92,9 +96,15 @@ def study_command(study: str, who: str, reward: str, out: str = "runs/tune") -> 
     return args
 
 
-REPRODUCE = ([(name(who, reward), settings_of(who, reward)) for who in LEARNERS for reward in REWARDS]
-             + [(name(f"dgpq-{p}"), dict(agent="dgpq", preset=p)) for p in HAND_SET]
-             + [(name("ac-optimal"), dict(agent="ac-optimal")), (name("twap"), dict(agent="twap"))])
+def plan() -> list:
+    """[(experiment, settings)]: each learner on each reward with its study's preset, DGPQ's hand-set
+    impact presets, and the AC optimum (which pairs every episode) and TWAP."""
+    return ([(name(who, reward), settings_of(who, reward)) for who in LEARNERS for reward in REWARDS]
+            + [(name(f"dgpq-{p}"), dict(agent="dgpq", preset=p)) for p in HAND_SET]
+            + [(name("ac-optimal"), dict(agent="ac-optimal")), (name("twap"), dict(agent="twap"))])
+
+
+REPRODUCE = plan()
 
 
 # ------------------------------------------------------------ measures
@@ -120,8 +130,8 @@ def in_budget(df: pd.DataFrame, budget: str) -> pd.DataFrame:
 
 
 def per_seed(df: pd.DataFrame, budget: str, column: str = "cost_ratio") -> np.ndarray:
-    got = in_budget(df, budget)
-    return seed_means(got, column, int(got.episode.min())).to_numpy(float)
+    """Each seed's mean of ``column`` in ``budget``'s window, by seed."""
+    return in_budget(df, budget).groupby("seed")[column].mean().to_numpy()
 
 
 def improvement(x: str, y: str, budget: str):
@@ -169,13 +179,25 @@ def cell(df: pd.DataFrame, budget: str, column: str) -> str:
         return "-"
 
 
+def worst_block(df: pd.DataFrame) -> str:
+    """IQM [95 % CI] over seeds of each seed's worst block of ``BLOCK`` episodes after episode ``SETTLE``
+    over its best (noise-free, analysis.py's drift); "-" where no block lies there (a short run)."""
+    from trl_dgpq.analysis.claims import seeds_interval
+
+    from .analysis import noise_free_drift
+    got = [noise_free_drift(g, BLOCK, SETTLE) for _, g in df.groupby("seed")]
+    values = [d["worst_over_best"] for d in got if d is not None]
+    return seeds_interval(values).text("{:.4f}") if len(values) and np.isfinite(values).any() else "-"
+
+
 def table(runs: dict) -> str:
     cols = [(b, c) for b in BUDGETS for c in MEASURES]
     rows = ["| run | reward | preset | " + " | ".join(f"{MEASURES[c]} at {BUDGETS[b]}" for b, c in cols)
-            + " | ms per seed-step |", "|---|---|---|" + "---|" * len(cols) + "---|"]
+            + f" | worst block of {BLOCK} after episode {SETTLE:,} over the best (noise-free) | ms per seed-step |",
+            "|---|---|---|" + "---|" * len(cols) + "---|---|"]
     for n in learners_of(runs) + [name("twap")]:
         run = runs[n]
-        cells = [cell(run.df, b, c) for b, c in cols]
+        cells = [cell(run.df, b, c) for b, c in cols] + [worst_block(run.df)]
         rows.append(f"| {n.removeprefix('liq1-')} | {run.config['env']['reward']} | {run.config['run']['preset']} | "
                     + " | ".join(cells) + f" | {ms_per_seed_step(run.df):.2f} |")
     return ("\n".join(rows) + "\n\nEach cell: IQM over seeds of each seed's mean in the window [95 % CI]; the "
