@@ -449,7 +449,8 @@ def test_reproduce_weighs_the_time_left_by_each_jobs_estimated_seconds():
 
 
 def test_a_begun_job_is_estimated_by_its_own_episode_times(tmp_path):
-    """Episodes 1-100 of 3 seeds done, each episode's batch 0.1 e seconds (0.1 e / 3 a seed-row): the
+    """Episodes 1-100 of 3 seeds done, each episode's batch 0.1 e seconds (0.1 e / 3 a seed-row; wall time
+    where the rows record no CPU time): the
     line through the second half is t = 0.1 e, so episodes 101-200 take 0.1 (20,100 - 5,050) = 1,505 s
     (a mean of the episodes done would say 505); an env-step budget: its steps left at its time per
     step over the second half; finished: 0; no episodes yet: no own estimate."""
@@ -466,6 +467,9 @@ def test_a_begun_job_is_estimated_by_its_own_episode_times(tmp_path):
     rows.to_csv(folders["a"] / "episodes.csv", index=False)
     start = reproduce.JOB_START_S
     assert reproduce.seconds_left(str(folders["a"]), plan["a"]["run"]) == pytest.approx(start + 1505)
+    # with the CPU time recorded (here half the wall time: another process shared the core), by that
+    rows.assign(cpu_s=rows.wall_s / 2).to_csv(folders["a"] / "episodes.csv", index=False)
+    assert reproduce.seconds_left(str(folders["a"]), plan["a"]["run"]) == pytest.approx(start + 1505 / 2)
     # a seed behind the others: its episode is not yet counted as done
     rows.iloc[:-1].to_csv(folders["a"] / "episodes.csv", index=False)
     assert reproduce.seconds_left(str(folders["a"]), plan["a"]["run"]) == pytest.approx(

@@ -454,21 +454,24 @@ def job_seconds(planned: dict, found: list, groups: Dict[str, int]) -> List[floa
 
 
 def seconds_left(folder: str, run: dict) -> Optional[float]:
-    """A begun job's time left by its own episodes: 0 if finished; None if it has no episodes yet. Its
-    batch time per episode (every seed's ``wall_s``), fitted by a line over the second half of the
-    episodes all its seeds ran, summed over the episodes left: an F-16 DGPQ job without a potential
-    pays a little more each episode as its Q̂ grows, which a mean would miss. A job with an env-step
-    budget: its steps left at its time per step over that second half."""
+    """A begun job's time left by its own episodes, in seconds of one core: 0 if finished; None if it has
+    no episodes yet. Its batch CPU time per episode (every seed's ``cpu_s``: the wall time rises with
+    whatever else shares the cores, the CPU time does not; ``wall_s`` for rows without it), fitted by a
+    line over the second half of the episodes all its seeds ran, summed over the episodes left: an
+    F-16 DGPQ job without a potential pays more each episode as its Q̂ grows, which a mean would miss.
+    A job with an env-step budget: its steps left at its time per step over that second half."""
     import numpy as np
     import pandas as pd
     folder = runner.RunFolder(folder)
     if folder.finished():
         return 0.0
     try:
-        df = pd.read_csv(folder.path / runner.EPISODES, usecols=["seed", "episode", "steps", "wall_s"])
+        df = pd.read_csv(folder.path / runner.EPISODES, usecols=lambda c: c in ("seed", "episode", "steps", "wall_s",
+                                                                                "cpu_s"))
     except (FileNotFoundError, pd.errors.EmptyDataError):
         return None
-    per = df.groupby("episode").agg(seeds=("seed", "nunique"), steps=("steps", "max"), wall_s=("wall_s", "sum"))
+    spent = "cpu_s" if "cpu_s" in df and df["cpu_s"].notna().all() else "wall_s"
+    per = df.groupby("episode").agg(seeds=("seed", "nunique"), steps=("steps", "max"), wall_s=(spent, "sum"))
     per = per[per.seeds == len(run["seeds"])]
     if per.empty:
         return None
