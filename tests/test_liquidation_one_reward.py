@@ -38,6 +38,8 @@ def test_the_episodes_budget_is_the_last_1000_of_5000_and_a_short_seed_is_refuse
     assert list(o.in_budget(frame(lambda s, e: e, seeds=[50], episodes=100), "episodes").episode) == \
         list(range(51, 101))                                               # a small scale: its second half
     assert o.in_budget(frame(lambda s, e: e, seeds=[50], episodes=101), "episodes").episode.min() == 51
+    longer = o.in_budget(frame(lambda s, e: e, seeds=[50], episodes=6000), "episodes")   # judged at 5,000 still
+    assert (longer.episode.min(), longer.episode.max()) == (4001, 5000)
     with pytest.raises(ValueError, match="short of 18,000"):
         o.in_budget(frame(lambda s, e: e, seeds=[50], episodes=299), "steps")
     ragged = pd.concat([frame(lambda s, e: e, seeds=[50], episodes=5000), frame(lambda s, e: e, seeds=[51],
@@ -166,7 +168,8 @@ def test_the_section_names_the_lowest_learner_per_reward_and_budget(tmp_path):
     # a run shorter than the steps budget (a small scale): "-" there, its second half for the other
     short = {n: Run(None, r.df[r.df.episode <= 100], r.config) for n, r in runs.items()}
     text = o.reproduce_section(short, tmp_path, "label", "title", [])
-    assert "- Lowest IQM at 18,000 env steps (last 50 episodes): not measured, the runs are shorter.\n" in text
+    assert ("- Lowest IQM at 18,000 env steps (last 50 episodes): not measured, ddpg, dgpq, dqn, td3 ran shorter.\n"
+            in text)
     assert "- Lowest IQM at 5,000 episodes (last 1,000): on shortfall, DGPQ (P(improves on DQN, the next) 0.50" in text
     assert "| twap | shortfall | shortfall | - | - | 1.005 [1.005, 1.006] | 1.505 [1.505, 1.506] | - | 1.00 |" in text
 

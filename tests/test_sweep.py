@@ -457,8 +457,9 @@ def test_a_begun_job_is_estimated_by_its_own_episode_times(tmp_path):
     out = tmp_path / "s"
     plan = {"a": resolve_config(env="corridor", agent="constant", seeds=[0, 1, 2], episodes=200),
             "b": resolve_config(env="corridor", agent="constant", seeds=[0, 1, 2], episodes=1000, env_steps=3000),
-            "c": resolve_config(env="corridor", agent="constant", seeds=[3], episodes=1)}
-    jobs = sweep.plan(plan, out, None)
+            "c": resolve_config(env="corridor", agent="constant", seeds=[3], episodes=1),
+            "d": resolve_config(env="corridor", agent="constant", seeds=[4, 5], episodes=1)}
+    jobs = sweep.plan(plan, out, None, {"d": 2})             # d in two jobs: one run, one not started
     sweep.create(out, plan, jobs)
     folders = {j.experiment: Path(j.folder) for j in jobs}
     e = np.repeat(np.arange(1, 101), 3)
@@ -479,14 +480,16 @@ def test_a_begun_job_is_estimated_by_its_own_episode_times(tmp_path):
     folders["b"].mkdir(parents=True)
     rows.to_csv(folders["b"] / "episodes.csv", index=False)
     assert reproduce.seconds_left(str(folders["b"]), plan["b"]["run"]) == pytest.approx(start + 2000 * 0.755)
-    sweep.execute(out, [j for j in jobs if j.experiment == "c"], "local", 1, log=lambda line: None)
+    sweep.execute(out, [j for j in jobs if j.experiment == "c" or j.seeds == [4]], "local", 1, log=lambda line: None)
     assert reproduce.seconds_left(str(folders["c"]), plan["c"]["run"]) == 0.0
     begun = reproduce.begun(out, plan)
-    assert set(begun) == {"a", "b", "c"} and begun["c"] == [(1, 0.0)]
+    assert set(begun) == {"a", "b", "c", "d"} and begun["c"] == [(1, 0.0)] and begun["d"] == [(1, 0.0), (1, None)]
     assert reproduce.seconds_left(str(tmp_path / "none"), plan["a"]["run"]) is None
     text = reproduce.plan_text(plan, tmp_path / "no-publication", out=out)
     assert f"a: 3 seeds x 200, ~{(start + 0.1 * (20100 - 4950)) / 60:,.1f} min left (begun in {out}" in text
-    assert f"c: 1 seed x 1, finished in {out}" in text and "3 of them begun" in text
+    assert f"c: 1 seed x 1, finished in {out}" in text and "4 of them begun" in text
+    # no publication to estimate d's job not started from: not "finished", and the total says so
+    assert "d: 2 seeds x 1, begun, 1 job not started and not estimated" in text and "without the 1 not estimated" in text
 
 
 @pytest.mark.slow

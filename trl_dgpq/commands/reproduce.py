@@ -470,15 +470,16 @@ def seconds_left(folder: str, run: dict) -> Optional[float]:
                                                                                 "cpu_s"))
     except (FileNotFoundError, pd.errors.EmptyDataError):
         return None
-    spent = "cpu_s" if "cpu_s" in df and df["cpu_s"].notna().all() else "wall_s"
-    per = df.groupby("episode").agg(seeds=("seed", "nunique"), steps=("steps", "max"), wall_s=(spent, "sum"))
+    if "cpu_s" in df:
+        df["wall_s"] = df["cpu_s"].fillna(df["wall_s"])
+    per = df.groupby("episode").agg(seeds=("seed", "nunique"), steps=("steps", "max"), wall_s=("wall_s", "sum"))
     per = per[per.seeds == len(run["seeds"])]
     if per.empty:
         return None
     done = int(per.index.max())
     late = per[per.index > done // 2]
-    if run.get("env_steps"):
-        steps_left = max(0.0, run["env_steps"] - float(per.steps.sum()))
+    if run.get("env_steps"):   # the seed furthest from its budget sets how long the batch goes on
+        steps_left = max(0.0, run["env_steps"] - float(df.groupby("seed")["steps"].sum().min()))
         return JOB_START_S + steps_left * float(late.wall_s.sum() / late.steps.sum())
     e, t = late.index.to_numpy(float), late.wall_s.to_numpy(float)
     slope = max(0.0, float(np.polyfit(e, t, 1)[0])) if len(e) >= 4 else 0.0
@@ -515,26 +516,32 @@ def plan_text(planned: dict, publication: Path, max_minutes: Optional[float] = N
     found = estimate(planned, publication)
     groups = seed_groups(planned, found, max_minutes)
     own = begun(out, planned) if out is not None else {}
-    lines, jobs = [], []
+    lines, jobs, unknown_jobs = [], [], 0
     for name, seconds, how in found:
         config = planned[name]["run"]
         size = f"{count(len(config['seeds']), 'seed')} x {config['episodes']:,}"
-        if name in own:   # a job not started yet: its share of the estimate (none: not counted)
-            left = [s if s is not None else job_share(seconds, n, len(config["seeds"])) if seconds is not None else 0.0
+        if name in own:   # a job not started yet: its share of the estimate (none: not estimated)
+            left = [s if s is not None else job_share(seconds, n, len(config["seeds"])) if seconds is not None else None
                     for n, s in own[name]]
-            jobs += [s for s in left if s > 0]
-            lines.append(f"  {name}: {size}, " + (f"~{sum(left) / 60:,.1f} min left (begun in {out}: by its own "
-                                                  "episode times)" if sum(left) else f"finished in {out}"))
+            jobs += [s for s in left if s]
+            unstarted = sum(s is None for s in left)
+            unknown_jobs += unstarted
+            known = sum(s for s in left if s)
+            lines.append(f"  {name}: {size}, " + (f"~{known / 60:,.1f} min left (begun in {out}: by its own "
+                                                  "episodes' CPU time)" if known else f"finished in {out}" if not unstarted
+                                                  else "begun")
+                         + (f", {count(unstarted, 'job')} not started and not estimated" if unstarted else ""))
             continue
         split = f" in {groups[name]} jobs" if name in groups else ""
         lines.append(f"  {name}: {size}, " + (f"~{seconds / 60:,.1f} min{split} ({how})" if seconds is not None else how))
         jobs += job_seconds(planned, [(name, seconds, how)], groups)
-    unknown = sum(s is None and name not in own for name, s, _ in found)
+    unknown = sum(s is None and name not in own for name, s, _ in found) + unknown_jobs
     total = sum(jobs)
     cores = ", ".join(f"{n} cores ~{hours(sweep.makespan(jobs, n))}" for n in CLUSTERS) if jobs else "-"
     how = (f"{len(jobs) + unknown} jobs (those over {max_minutes:g} min of one core split into seed groups)"
            if max_minutes is not None else "one job each")
-    left = f" left, {len(own)} of them begun in {out} (those by their own episodes)" if own else ""
+    left = (f" left, {len(own)} of them begun in {out} (those by their own episodes' CPU time, the others by "
+            "published wall time)" if own else "")
     return ("\n".join(lines) + f"\n{len(found)} experiments, {how}: ~{hours(total)} of one core{left}"
             + (f" and wall time {cores}, both without the {unknown} not estimated" if unknown else f"; wall time {cores}")
             + " (longest job first; "
