@@ -470,9 +470,8 @@ def seconds_left(folder: str, run: dict) -> Optional[float]:
                                                                                 "cpu_s"))
     except (FileNotFoundError, pd.errors.EmptyDataError):
         return None
-    if "cpu_s" in df:
-        df["wall_s"] = df["cpu_s"].fillna(df["wall_s"])
-    per = df.groupby("episode").agg(seeds=("seed", "nunique"), steps=("steps", "max"), wall_s=("wall_s", "sum"))
+    df["spent"] = df["cpu_s"].fillna(df["wall_s"]) if "cpu_s" in df else df["wall_s"]
+    per = df.groupby("episode").agg(seeds=("seed", "nunique"), steps=("steps", "max"), spent=("spent", "sum"))
     per = per[per.seeds == len(run["seeds"])]
     if per.empty:
         return None
@@ -480,8 +479,8 @@ def seconds_left(folder: str, run: dict) -> Optional[float]:
     late = per[per.index > done // 2]
     if run.get("env_steps"):   # the seed furthest from its budget sets how long the batch goes on
         steps_left = max(0.0, run["env_steps"] - float(df.groupby("seed")["steps"].sum().min()))
-        return JOB_START_S + steps_left * float(late.wall_s.sum() / late.steps.sum())
-    e, t = late.index.to_numpy(float), late.wall_s.to_numpy(float)
+        return JOB_START_S + steps_left * float(late.spent.sum() / late.steps.sum())
+    e, t = late.index.to_numpy(float), late.spent.to_numpy(float)
     slope = max(0.0, float(np.polyfit(e, t, 1)[0])) if len(e) >= 4 else 0.0
     level = float(t.mean() - slope * e.mean())         # the line through the mean at that slope
     first, last = done + 1, run["episodes"]
@@ -523,13 +522,15 @@ def plan_text(planned: dict, publication: Path, max_minutes: Optional[float] = N
         if name in own:   # a job not started yet: its share of the estimate (none: not estimated)
             left = [s if s is not None else job_share(seconds, n, len(config["seeds"])) if seconds is not None else None
                     for n, s in own[name]]
-            jobs += [s for s in left if s]
+            estimated = [s for s in left if s]
+            jobs += estimated
             unstarted = sum(s is None for s in left)
             unknown_jobs += unstarted
-            known = sum(s for s in left if s)
-            lines.append(f"  {name}: {size}, " + (f"~{known / 60:,.1f} min left (begun in {out}: by its own "
-                                                  "episodes' CPU time)" if known else f"finished in {out}" if not unstarted
-                                                  else "begun")
+            if estimated:
+                state = f"~{sum(estimated) / 60:,.1f} min left (begun in {out}: by its own episodes' CPU time)"
+            else:
+                state = "begun" if unstarted else f"finished in {out}"
+            lines.append(f"  {name}: {size}, {state}"
                          + (f", {count(unstarted, 'job')} not started and not estimated" if unstarted else ""))
             continue
         split = f" in {groups[name]} jobs" if name in groups else ""
@@ -540,9 +541,9 @@ def plan_text(planned: dict, publication: Path, max_minutes: Optional[float] = N
     cores = ", ".join(f"{n} cores ~{hours(sweep.makespan(jobs, n))}" for n in CLUSTERS) if jobs else "-"
     how = (f"{len(jobs) + unknown} jobs (those over {max_minutes:g} min of one core split into seed groups)"
            if max_minutes is not None else "one job each")
-    left = (f" left, {len(own)} of them begun in {out} (those by their own episodes' CPU time, the others by "
-            "published wall time)" if own else "")
-    return ("\n".join(lines) + f"\n{len(found)} experiments, {how}: ~{hours(total)} of one core{left}"
+    under_way = (f" left, {len(own)} of them begun in {out} (those by their own episodes' CPU time, the others by "
+                 "published wall time)" if own else "")
+    return ("\n".join(lines) + f"\n{len(found)} experiments, {how}: ~{hours(total)} of one core{under_way}"
             + (f" and wall time {cores}, both without the {unknown} not estimated" if unknown else f"; wall time {cores}")
             + " (longest job first; "
             f"times per seed-episode from {publication}, measured on 2 loaded cores)\n")
