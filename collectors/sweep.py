@@ -90,10 +90,31 @@ def minutes_left(minutes: float, done: List[Job], left: List[Job],
     """The time the jobs ``left`` need at the rate the ``done`` ones took ``minutes``, by their
     ``cost`` (default: planned seed-steps; reproduce passes each job's estimated seconds, since a
     scripted job's step costs a hundredth of a learner's). The first ``running`` of ``left`` are
-    under way: half of each counts as done (the minutes went to them too)."""
+    under way: half of each counts as done (the minutes went to them too). For a backend that
+    does not say when each job starts (Ray); the local one uses ``seconds_left``."""
     under_way = sum(map(cost, left[:running])) / 2
     spent = sum(map(cost, done)) + under_way
     return minutes * (sum(map(cost, left)) - under_way) / spent if spent > 0 else 0.0
+
+
+def seconds_left(done: List[tuple], running: List[tuple], pending: List[Job], workers: int,
+                 cost: Callable[[Job], float] = planned_seed_steps) -> Optional[float]:
+    """Seconds until the last job ends: every job takes its ``cost`` times the seconds per unit of
+    cost the ``done`` jobs took, each from its own start to its end ([(job, seconds)]); a
+    ``running`` one ([(job, seconds it has run)]) less what it has run; the ``pending`` ones, in
+    the order they start, each to the worker free first. A sum of costs over a rate would miss
+    the tail: one long job left on one of two workers takes all its time, not half. None before
+    any job has ended (no rate yet)."""
+    import heapq
+    spent = sum(cost(job) for job, _ in done)
+    if spent <= 0:
+        return None
+    rate = sum(seconds for _, seconds in done) / spent
+    free = [max(cost(job) * rate - ran, 0.0) for job, ran in running] + [0.0] * max(workers - len(running), 0)
+    heapq.heapify(free)
+    for job in pending:
+        heapq.heappush(free, heapq.heappop(free) + cost(job) * rate)
+    return max(free, default=0.0)
 
 
 def clock(minutes: float) -> str:
@@ -241,7 +262,8 @@ def outcome(job: Job, exitcode: Optional[int] = None, error: Optional[str] = Non
 
 
 # ------------------------------------------------------------------ backends
-def run_local(jobs: List[Job], workers: int, on_done: Callable[[Job, dict], None]) -> None:
+def run_local(jobs: List[Job], workers: int, on_done: Callable[[Job, dict], None],
+              on_start: Callable[[Job], None] = lambda job: None) -> None:
     """Each job in its own process, ``workers`` at a time. A process per job, not a
     ProcessPoolExecutor: a killed worker breaks the whole executor, here it loses one job.
     Processes come from a forkserver that has imported the package once (fast starts,
@@ -258,6 +280,7 @@ def run_local(jobs: List[Job], workers: int, on_done: Callable[[Job, dict], None
                     proc = ctx.Process(target=_job_process, args=(job.config, job.folder), name=job.name)
                     proc.start()
                     running[proc.sentinel] = (proc, job)
+                    on_start(job)
             for sentinel in wait(list(running)):
                 with _sigterm_held():
                     proc, job = running.pop(sentinel)
@@ -480,7 +503,7 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
             cost: Callable[[Job], float] = planned_seed_steps) -> dict:
     """Run the jobs that have not finished; merge each experiment as soon as its jobs all
     have (so that a sweep of many hours can be read before it ends: ``reproduce --report``).
-    ``cost`` weighs the jobs for the time-left guide (``minutes_left``). Returns the report {job
+    ``cost`` weighs the jobs for the time-left guide (``seconds_left``; ``minutes_left`` on Ray). Returns the report {job
     name: outcome} (also in OUT/report.json)."""
     if backend not in BACKENDS:
         raise SweepError(f"backend must be one of {BACKENDS}, got {backend!r}")
@@ -488,6 +511,7 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
     todo = [j for j in jobs if not runner.RunFolder(j.folder).finished()]
     report = {j.name: dict(status="finished", seeds=j.seeds, note="finished before") for j in jobs if j not in todo}
     t0, done, finished, merged = time.perf_counter(), [0], [], set()
+    started, took = {}, []   # job name -> when it started; [(job, its seconds)] of those that finished
     names = {j.name for j in todo}
 
     def merge_if_done(name: str) -> None:
@@ -495,20 +519,32 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
             merged.add(name)
             log(f"{name}: all jobs finished -> {out / name / runner.EPISODES}")
 
+    def on_start(job: Job) -> None:
+        started[job.name] = time.perf_counter()
+
     def on_done(job: Job, result: dict) -> None:
+        now = time.perf_counter()
         done[0] += 1
         finished.append(job)
+        if result["status"] == "finished" and job.name in started:   # an interrupted job says nothing of a rate
+            took.append((job, now - started[job.name]))
         report[job.name] = dict(**result, seeds=job.seeds, experiment=job.experiment, job=job.index,
-                                elapsed_s=round(time.perf_counter() - t0, 2))
+                                elapsed_s=round(now - t0, 2))
         failed = sum(r["status"] != "finished" for name, r in report.items() if name in names)
         left = len(todo) - done[0]
-        # local: the pool refills at once, so min(workers, left) run; Ray schedules what it was given
-        busy = min(workers or os.cpu_count() or 1, left) if backend == "local" else 0
-        running = f" ({busy} running)" if busy else ""
-        minutes = (time.perf_counter() - t0) / 60
         rest = [j for j in todo if j not in finished]   # the pool starts them in this order: its first run
-        eta = f", ~{clock(minutes_left(minutes, finished, rest, cost, busy))} left at this rate" if left else ""
-        line = (f"[{done[0]}/{len(todo)} jobs done, {failed} not finished, {left} to go{running}; "
+        minutes = (now - t0) / 60
+        if backend == "local":
+            running = [(j, now - started[j.name]) for j in rest if j.name in started]
+            pending = [j for j in rest if j.name not in started]
+            busy = min(workers or os.cpu_count() or 1, left)   # the pool refills at once
+            seconds = seconds_left(took, running, pending, workers or os.cpu_count() or 1, cost)
+            guess = None if seconds is None else seconds / 60
+        else:   # Ray schedules what it was given and does not say when each job starts
+            busy, guess = 0, minutes_left(minutes, finished, rest, cost)
+        running_text = f" ({busy} running)" if busy else ""
+        eta = f", ~{clock(guess)} left at this rate" if left and guess is not None else ""
+        line = (f"[{done[0]}/{len(todo)} jobs done, {failed} not finished, {left} to go{running_text}; "
                 f"{minutes:.1f} min{eta}] {job.name}: {result['status']}")
         log(line + (f" -- {result['reason']}" if result.get("reason") else ""))
         merge_if_done(job.experiment)
@@ -518,7 +554,7 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
         merge_if_done(name)
     if todo:
         if backend == "local":
-            run_local(todo, workers or os.cpu_count() or 1, on_done)
+            run_local(todo, workers or os.cpu_count() or 1, on_done, on_start)
         else:
             run_ray(todo, ray_address, cpus_per_job, on_done)
     runner.RunFolder(out).write_json(REPORT, report)

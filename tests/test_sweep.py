@@ -373,7 +373,8 @@ def test_a_job_that_ended_unfinished_counts_as_not_finished_in_the_progress_line
     sweep.create(tmp_path / "s", experiments, jobs)
     ends = [dict(status="finished"), dict(status="interrupted", reason="SIGINT"),
             dict(status="killed", reason="killed by SIGKILL"), dict(status="failed", reason="exit code 1")]
-    monkeypatch.setattr(sweep, "run_local", lambda todo, workers, on_done: [on_done(j, r) for j, r in zip(todo, ends)])
+    monkeypatch.setattr(sweep, "run_local", lambda todo, workers, on_done, on_start: [
+        (on_start(j), on_done(j, r)) for j, r in zip(todo, ends)])
     lines = []
     report = sweep.execute(tmp_path / "s", jobs, "local", 1, log=lines.append)
     assert [line.split(";")[0] for line in lines] == [
@@ -553,6 +554,26 @@ def test_a_plan_that_grew_keeps_the_finished_jobs_and_adds_the_new_ones(tmp_path
     jobs = sweep.grow(out, {"a": other, "b": b}, None)
     assert [(j.experiment, j.seeds) for j in jobs] == [("b", [2]), ("a", [0, 1])]
     assert sweep.load(out)[0]["a"] == other and not runner.RunFolder(jobs[1].folder).finished()
+
+
+def test_the_time_left_gives_each_job_left_to_the_worker_free_first_at_the_rate_the_finished_took():
+    """Jobs costing a 1 and b 3 took 20 s and 60 s: 20 s per unit. c (cost 2) has run 15 s of its
+    40: 25 left; d (1: 20 s) and e (4: 80 s) wait, in that order, for 2 workers: d on the idle
+    one (0 -> 20), then e on it again (20 -> 100), while c ends at 25: 100 s, not the 62.5 s a
+    sum of costs over two workers would say. The order is the pool's: e first ends at 80."""
+    a, b, c, d, e = (sweep.Job(name, 0, [0], "x", {}) for name in "abcde")
+    units = {"a": 1, "b": 3, "c": 2, "d": 1, "e": 4}
+    cost = lambda job: units[job.experiment]          # noqa: E731
+    took = [(a, 20.0), (b, 60.0)]
+    assert sweep.seconds_left(took, [(c, 15.0)], [d, e], 2, cost) == pytest.approx(100.0)
+    assert sweep.seconds_left(took, [(c, 15.0)], [e, d], 2, cost) == pytest.approx(80.0)
+    assert sweep.seconds_left(took, [(c, 15.0)], [d, e], 1, cost) == pytest.approx(125.0)   # one after another
+    assert sweep.seconds_left(took, [(c, 15.0)], [d, e], 3, cost) == pytest.approx(80.0)    # each its own worker
+    assert sweep.seconds_left(took, [(c, 15.0)], [], 2, cost) == pytest.approx(25.0)
+    assert sweep.seconds_left(took, [(c, 50.0)], [d], 2, cost) == pytest.approx(20.0)       # c past its guess: 0 left
+    assert sweep.seconds_left(took, [], [], 2, cost) == 0.0
+    assert sweep.seconds_left([], [(c, 15.0)], [d], 2, cost) is None                        # no rate yet
+    assert sweep.seconds_left([(a, 5.0)], [], [d], 2, lambda job: 0.0) is None
 
 
 def test_makespan_gives_each_job_longest_first_to_the_worker_free_first():
