@@ -447,6 +447,10 @@ def test_reproduce_weighs_the_time_left_by_each_jobs_estimated_seconds():
     rates = sorted((estimated[n] - start) / (20 * 10_000) for n in estimated)   # 20 seeds x the 10,000-step budget
     walk = sweep.Job("walk", 0, [0, 1], "x", planned["walk"])
     assert cost(walk) == pytest.approx(start + 2 * 5 * 50 * rates[1])   # 2 seeds x 5 episodes of at most 50 steps
+    # a job begun before costs what its own episodes say it has left; the others as before
+    resumed = reproduce.job_cost(planned, found, {"x-walk": 7.5})
+    assert resumed(sweep.Job("walk", 0, [0, 1], "x-walk", planned["walk"])) == 7.5
+    assert resumed(walk) == pytest.approx(cost(walk)) and resumed(half) == pytest.approx(cost(half))
 
 
 def test_a_begun_job_is_estimated_by_its_own_episode_times(tmp_path):

@@ -407,10 +407,13 @@ def job_share(seconds: float, seeds: int, of: int) -> float:
     return JOB_START_S + (seconds - JOB_START_S) * seeds / of
 
 
-def job_cost(planned: dict, found: list):
+def job_cost(planned: dict, found: list, own: Optional[Dict[str, float]] = None):
     """Job -> its estimated seconds (``estimate``'s ``found``, its share of its experiment's seeds), for
     the sweep's time-left guide; a job of an experiment with no estimate at its planned seed-steps times
-    the median seconds per planned seed-step of those with one (all at their seed-steps if none has)."""
+    the median seconds per planned seed-step of those with one (all at their seed-steps if none has). A
+    job begun before, in ``own`` ({job folder: its ``seconds_left``}), costs what it has left: counted
+    whole, a job resumed near its end would make the rate of the jobs after it look fast."""
+    own = own or {}
     estimated = {name: seconds for name, seconds, _ in found if seconds is not None}
     steps = sweep.planned_seed_steps
     rates = sorted((estimated[n] - JOB_START_S) / steps(sweep.Job(n, 0, planned[n]["run"]["seeds"], "", planned[n]))
@@ -418,6 +421,8 @@ def job_cost(planned: dict, found: list):
     rate = rates[len(rates) // 2] if rates else 1.0
 
     def cost(job) -> float:
+        if job.folder in own:
+            return own[job.folder]
         seconds = estimated.get(job.experiment)
         if seconds is not None:
             return job_share(seconds, len(job.seeds), len(planned[job.experiment]["run"]["seeds"]))
@@ -702,8 +707,9 @@ def main(argv=None) -> int:
               + (f", {len(now)} of them now" if len(now) < len(planned) else "") + f", {args.workers} workers",
               flush=True)
         t0 = time.perf_counter()
+        own = {j.folder: left for j in jobs if (left := seconds_left(j.folder, j.config["run"])) is not None}
         report = sweep.execute(out, jobs, "local", args.workers, log=lambda line: print(line, flush=True),
-                               cost=job_cost(planned, found))
+                               cost=job_cost(planned, found, own))
         if sweep.exit_code(report, "the same command"):
             return 1
         path = write_report(out, args.scale, time.perf_counter() - t0, args.only)
