@@ -92,7 +92,14 @@ def stage(sources: list[str], tests: list[str], pytest_args: list[str]) -> None:
     if STAGE.exists():
         shutil.rmtree(STAGE)
     STAGE.mkdir(parents=True)
-    ignore = shutil.ignore_patterns("__pycache__", "*.egg-info", "*.pyc")
+    patterns = shutil.ignore_patterns("__pycache__", "*.egg-info", "*.pyc")
+
+    def ignore(folder: str, names: list) -> set:
+        # and links: a checkout may link trl_dgpq/envs to ../envs (the installed layout, for running
+        # it with PYTHONPATH); the staging tree lays those folders out itself
+        laid_out = {str((ROOT / checkout).resolve()) for checkout in LAYOUT}
+        return set(patterns(folder, names)) | {n for n in names if os.path.islink(os.path.join(folder, n))
+                                               and os.path.realpath(os.path.join(folder, n)) in laid_out}
     tops = []
     for item in sorted(ROOT.iterdir()):
         if item.name in SKIP or item.name.startswith(".") or item.name in LAYOUT or item.name.endswith(".egg-info"):
