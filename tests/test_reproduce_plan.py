@@ -67,3 +67,18 @@ def test_the_command_writes_the_file_and_runs_nothing(tmp_path, capsys):
     assert capsys.readouterr().out == f"wrote {path}: {len(picked)} experiments\n"
     assert path.read_text().startswith(f"# Written by `{reproduce.prog('reproduce')} --scale smoke --only f16 "
                                        f"--experiments f16-dgpq-* --sweep-file {path}`")
+
+
+QUICK_MINUTES = 5.0   # what a reader waits for `reproduce --scale quick` on a quiet 2-core machine (issue 53)
+
+
+def test_the_quick_scale_is_planned_within_five_minutes_on_two_cores():
+    """Every part at the quick scale, each experiment estimated from the committed publication
+    (``estimate``: its steps at a published experiment's time per step, plus a job's start) and
+    scheduled on 2 workers longest first: within 5 minutes. A part added or lengthened past that
+    fails here, before a reader waits for it; an experiment the publication cannot estimate too."""
+    planned = reproduce.experiments("quick")
+    found = reproduce.estimate(planned, reproduce.PUBLICATION)
+    assert [name for name, seconds, _ in found if seconds is None] == []
+    minutes = sweep.makespan(reproduce.job_seconds(planned, found, {}), 2) / 60
+    assert minutes <= QUICK_MINUTES, f"the quick scale is planned at {minutes:.1f} minutes on 2 cores"

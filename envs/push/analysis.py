@@ -75,7 +75,7 @@ TITLE = "Block pushing (the seed report's 4.3)"
 SUMMARY = ('DGPQ with an RBF and with the manifold kernel pushing a block in pybullet, beside a scripted oracle;'
            " the seed report's code never stepped the robot, so there is no number to compare.")
 # (seeds, episodes) at each scale; an experiment may name its own as a third item
-SCALES = {"smoke": (1, 3), "quick": (6, 60), "full": (10, 100), "report": (10, 100)}
+SCALES = {"smoke": (1, 3), "quick": (3, 20), "full": (10, 100), "report": (10, 100)}
 REPRODUCE = [
     ("push-rbf", dict(agent="dgpq", preset="shaped")),
     ("push-manifold", dict(agent="dgpq", preset="manifold")),
