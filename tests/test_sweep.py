@@ -280,7 +280,8 @@ def test_reproduce_on_one_worker_runs_domain_by_domain_the_smallest_first(tmp_pa
     (at most: the step caps), square-paper-tuned 3 x 20 seeds x its 10,000-step budget = 600,000, gym
     10 seeds x its budgets, and the square, whose runs for GWH14's claims are capped at 20,000 steps,
     10 x 100 x 20,000 for one of them alone: push's jobs run first, then square-paper-tuned's, then
-    gym's, each part's jobs together; on two workers DDPG and TD3 (the costliest per step) go first."""
+    gym's, each part's jobs together; on two workers the longest first by their estimates, or without
+    them DDPG and TD3 (the costliest per step)."""
     planned = reproduce.experiments("report")
     jobs = sweep.plan(planned, tmp_path / "r", None)
     domains = {name: d.name for d, a in reproduce.reproductions() for name, *_ in a.REPRODUCE}
@@ -293,6 +294,12 @@ def test_reproduce_on_one_worker_runs_domain_by_domain_the_smallest_first(tmp_pa
     agents = [j.config["run"]["agent"] for j in reproduce.in_order(jobs, 2)]
     first = len([a for a in agents if a in ("ddpg", "td3")])
     assert first == 6 and set(agents[:first]) == {"ddpg", "td3"}
+    # with each job's estimate: the longest first, ties in the plan's order
+    seconds = {j.name: float(k % 5) for k, j in enumerate(jobs)}
+    longest = reproduce.in_order(jobs, 2, lambda j: seconds[j.name])
+    assert [seconds[j.name] for j in longest] == sorted(seconds.values(), reverse=True)
+    assert [j.name for j in longest if seconds[j.name] == 4.0] == [j.name for j in jobs if seconds[j.name] == 4.0]
+    assert reproduce.in_order(jobs, 1, lambda j: seconds[j.name]) == reproduce.in_order(jobs, 1)   # one worker: by domain
 
 
 def test_reproduce_only_plans_the_named_domains():

@@ -159,12 +159,16 @@ def sweep_file(settings: dict, command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def in_order(jobs: list, workers: int) -> list:
+def in_order(jobs: list, workers: int, cost=None) -> list:
     """The order the jobs run in. On one worker, domain by domain, the domain of fewest planned
     seed-steps first and its jobs shortest first: a run of many hours completes a section of
-    the report (``--report``) as early as it can. On more, DDPG and TD3 first (on liquidation
-    ~0.5 and ~8 ms per seed-step against DGPQ's ~0.2), so that no long job starts last."""
+    the report (``--report``) as early as it can. On more, the longest first by ``cost`` (job ->
+    its estimated seconds, ``job_cost``), so that no long job starts last: the schedule the plan's
+    wall time assumes; without a cost, DDPG and TD3 first (on liquidation ~0.5 and ~8 ms per
+    seed-step against DGPQ's ~0.2)."""
     if workers > 1:
+        if cost is not None:
+            return sorted(jobs, key=lambda j: -cost(j))   # stable: ties keep the plan's order
         return sorted(jobs, key=lambda j: j.config["run"]["agent"] not in ("ddpg", "td3"))
     domain_of = {name: d.name for d, analysis in reproductions() for name, *_ in analysis.REPRODUCE}
     steps = [sweep.planned_seed_steps(j) for j in jobs]
@@ -702,14 +706,15 @@ def main(argv=None) -> int:
         if args.reuse:
             jobs = sweep.reuse(out, jobs, args.reuse, same=lambda a, b: same_config(a) == same_config(b),
                                log=lambda line: print(line, flush=True))
-        jobs = in_order([j for j in jobs if j.experiment in now], args.workers)
+        own = {j.folder: left for j in jobs if (left := seconds_left(j.folder, j.config["run"])) is not None}
+        cost = job_cost(planned, found, own)
+        jobs = in_order([j for j in jobs if j.experiment in now], args.workers, cost)
         print(f"reproduce ({args.scale}) -> {out}: {len(planned)} experiments"
               + (f", {len(now)} of them now" if len(now) < len(planned) else "") + f", {args.workers} workers",
               flush=True)
         t0 = time.perf_counter()
-        own = {j.folder: left for j in jobs if (left := seconds_left(j.folder, j.config["run"])) is not None}
         report = sweep.execute(out, jobs, "local", args.workers, log=lambda line: print(line, flush=True),
-                               cost=job_cost(planned, found, own))
+                               cost=cost)
         if sweep.exit_code(report, "the same command"):
             return 1
         path = write_report(out, args.scale, time.perf_counter() - t0, args.only)
