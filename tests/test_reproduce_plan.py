@@ -69,16 +69,21 @@ def test_the_command_writes_the_file_and_runs_nothing(tmp_path, capsys):
                                        f"--experiments f16-dgpq-* --sweep-file {path}`")
 
 
-QUICK_MINUTES = 5.0   # what a reader waits for `reproduce --scale quick` on a quiet 2-core machine (issue 53)
+# What a reader waits for `reproduce --scale quick` on a quiet 2-core machine is 5 minutes (issue 53):
+# the sweep's estimate within 4, since the report takes about one more, and on 2026-11-28 the quick
+# scale's CPU time in its episodes was 1.05-1.15x its estimate (a small batch costs more per seed
+# than the published ones it is estimated from)
+SWEEP_MINUTES = 4.0
 
 
 def test_the_quick_scale_is_planned_within_five_minutes_on_two_cores():
     """Every part at the quick scale, each experiment estimated from the committed publication
     (``estimate``: its steps at a published experiment's time per step, plus a job's start) and
-    scheduled on 2 workers longest first: within 5 minutes. A part added or lengthened past that
-    fails here, before a reader waits for it; an experiment the publication cannot estimate too."""
+    scheduled on 2 workers longest first: within 4 minutes, the report's minute apart. A part
+    added or lengthened past that fails here, before a reader waits for it; an experiment the
+    publication cannot estimate too."""
     planned = reproduce.experiments("quick")
     found = reproduce.estimate(planned, reproduce.PUBLICATION)
     assert [name for name, seconds, _ in found if seconds is None] == []
     minutes = sweep.makespan(reproduce.job_seconds(planned, found, {}), 2) / 60
-    assert minutes <= QUICK_MINUTES, f"the quick scale is planned at {minutes:.1f} minutes on 2 cores"
+    assert minutes <= SWEEP_MINUTES, f"the quick scale's sweep is planned at {minutes:.1f} minutes on 2 cores"

@@ -883,7 +883,7 @@ def test_sweep_and_reproduce_end_a_signal_with_one_line_and_its_code(tmp_path, m
 def test_the_plan_estimates_each_experiment_from_the_published_one_like_it(tmp_path, capsys):
     """A publication holding one corridor run (1 seed x 10 episodes, 1 s per episode for 4, then 2 s):
     4 episodes of 2 seeds cost 2 x 4 x 1 = 8 s; 20 episodes, past the published 10, cost
-    2 x (10 x 1.6 + 10 x 2) = 72 s (the extra episodes at its last 10 %'s rate); each job 3 s more
+    2 x (10 x 1.6 + 10 x 2) = 72 s (the extra episodes at its last 10 %'s rate); each job 1 s more
     to start; another agent has none like it."""
     data = tmp_path / "pub" / "data"
     data.mkdir(parents=True)
@@ -898,20 +898,20 @@ def test_the_plan_estimates_each_experiment_from_the_published_one_like_it(tmp_p
                "a": a}
     got = {name: (seconds, how) for name, seconds, how in reproduce.estimate(planned, tmp_path / "pub")}
     start = reproduce.JOB_START_S
-    assert start == 3.0
-    assert got["b"] == (pytest.approx(3 + 8.0), "like a, 0 settings apart")
-    assert got["c"] == (pytest.approx(3 + 72.0), "like a, 1 setting apart")
-    assert got["d"] == (None, "no published experiment like it") and got["a"] == (pytest.approx(3 + 16.0), "measured")
+    assert start == 1.0
+    assert got["b"] == (pytest.approx(1 + 8.0), "like a, 0 settings apart")
+    assert got["c"] == (pytest.approx(1 + 72.0), "like a, 1 setting apart")
+    assert got["d"] == (None, "no published experiment like it") and got["a"] == (pytest.approx(1 + 16.0), "measured")
     text = reproduce.plan_text(planned, tmp_path / "pub")
-    assert "  c: 2 seeds x 20, ~1.2 min (like a, 1 setting apart)\n" in text         # 75 s
-    assert "4 experiments, one job each: ~1.8 min of one core and wall time 2 cores ~1.2 min" in text   # 105 s; 75 s
+    assert "  c: 2 seeds x 20, ~1.2 min (like a, 1 setting apart)\n" in text         # 73 s
+    assert "4 experiments, one job each: ~1.6 min of one core and wall time 2 cores ~1.2 min" in text   # 99 s; 73 s
     assert "both without the 1 not estimated (longest job first" in text
     budget = {"e": resolve_config(env="corridor", agent="constant", seeds=[10], episodes=4, env_steps=9),
               "g": resolve_config(env="corridor", agent="constant", seeds=[10], episodes=100, env_steps=9)}
     got = {n: s for n, s, _ in reproduce.estimate(budget, tmp_path / "pub")}   # a: 3 steps an episode, 16 s over 30 steps
-    assert got["e"] == pytest.approx(3 + 9 * 16 / 30) and got["g"] == pytest.approx(3 + 9 * 16 / 30)
+    assert got["e"] == pytest.approx(1 + 9 * 16 / 30) and got["g"] == pytest.approx(1 + 9 * 16 / 30)
     small = {"h": resolve_config(env="corridor", agent="constant", seeds=[10], episodes=2, env_steps=9)}
-    assert reproduce.estimate(small, tmp_path / "pub")[0][1] == pytest.approx(3 + 2 * 3 * 16 / 30)  # its 2 episodes first
+    assert reproduce.estimate(small, tmp_path / "pub")[0][1] == pytest.approx(1 + 2 * 3 * 16 / 30)  # its 2 episodes first
     assert reproduce.main(["--scale", "smoke", "--only", "f16", "--plan", "--experiments", "f16-pd"]) == 0
     assert capsys.readouterr().out.startswith("  f16-pd: 1 seed x 3, ~")
 
@@ -957,13 +957,13 @@ def test_reproduce_runs_a_split_experiment_in_its_jobs_and_keeps_them_when_conti
         (n, 3600.0 if n == "f16-pd" else s, how) for n, s, how in real(planned, pub)])
     args = ["--scale", "quick", "--only", "f16", "--workers", "1", "--experiments", "f16-pd"]
     assert reproduce.main(args + ["--plan", "--max-job-minutes", "40"]) == 0
-    assert "  f16-pd: 2 seeds x 50, ~60.0 min in 2 jobs (" in capsys.readouterr().out
+    assert "  f16-pd: 2 seeds x 20, ~60.0 min in 2 jobs (" in capsys.readouterr().out
     out = tmp_path / "r"
     assert reproduce.main(args + ["--out", str(out), "--max-job-minutes", "40"]) == 0
     jobs = sorted((out / "f16-pd" / "jobs").iterdir())
     assert [json.loads((j / "config.json").read_text())["run"]["seeds"] for j in jobs] == [[10], [11]]
     rows = pd.read_csv(out / "f16-pd" / "episodes.csv")
-    assert sorted(set(rows.seed)) == [10, 11] and len(rows) == 100
+    assert sorted(set(rows.seed)) == [10, 11] and len(rows) == 40                 # 2 seeds x 20 episodes
     assert reproduce.main(args + ["--out", str(out), "--max-job-minutes", "1000"]) == 0
     assert sorted(p.name for p in (out / "f16-pd" / "jobs").iterdir()) == ["j000", "j001"]
     with pytest.raises(SystemExit):
