@@ -11,6 +11,7 @@
     python scripts/bench.py threads # ms per seed-step at 1 and 2 torch threads, quiet and loaded
     python scripts/bench.py step-parts  # a learning step: the update and the work around it
     python scripts/bench.py bound   # neural learners: ms per seed-step against their arithmetic bound
+    python scripts/bench.py quick   # reproduce --scale quick: its wall time, time-left guide and estimate
 """
 from __future__ import annotations
 
@@ -399,6 +400,12 @@ def _neural():
     return bench_neural
 
 
+def _quick():
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import bench_quick
+    return bench_quick
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="what", required=True)
@@ -466,6 +473,11 @@ def main(argv=None):
     bd.add_argument("--threads", type=int, default=1)
     bd.add_argument("--out", default=None)
     bd.set_defaults(fn=lambda a: _neural().bench_bound(a))
+    qk = sub.add_parser("quick", help="reproduce --scale quick: wall time, the time-left guide, the estimate")
+    qk.add_argument("--workers", type=int, default=2)
+    qk.add_argument("--out-dir", default=None, help="the reproduction's folder (default: a new one under runs/)")
+    qk.add_argument("--out", default=None)
+    qk.set_defaults(fn=lambda a: _quick().bench_quick(a))
     sp = sub.add_parser("step-parts", help="a learning step of DDPG and DQN: the update and the work around it")
     sp.add_argument("--threads", type=int, default=1)
     sp.add_argument("--warmup", type=int, default=1_100)
