@@ -454,6 +454,12 @@ def test_reproduce_weighs_the_time_left_by_each_jobs_estimated_seconds():
     rates = sorted((estimated[n] - start) / (20 * 10_000) for n in estimated)   # 20 seeds x the 10,000-step budget
     walk = sweep.Job("walk", 0, [0, 1], "x", planned["walk"])
     assert cost(walk) == pytest.approx(start + 2 * 5 * 50 * rates[1])   # 2 seeds x 5 episodes of at most 50 steps
+    # the median of four rates (1, 2, 3, 4 s a step: the upper middle, 3); none estimated: 1 s a step
+    ones = {f"e{k}": resolve_config(env="corridor", agent="constant", seeds=[0], episodes=1) for k in range(1, 5)}
+    four = reproduce.job_cost({**ones, "walk": planned["walk"]},
+                              [(n, start + 50 * k, "x") for k, n in enumerate(ones, 1)] + [("walk", None, "none")])
+    assert four(walk) == pytest.approx(start + 500 * 3)                       # 2 seeds x 5 episodes x 50 steps
+    assert reproduce.job_cost({"walk": planned["walk"]}, [("walk", None, "none")])(walk) == pytest.approx(start + 500)
     # a job begun before costs what its own episodes say it has left; the others as before
     resumed = reproduce.job_cost(planned, found, {"x-walk": 7.5})
     assert resumed(sweep.Job("walk", 0, [0, 1], "x-walk", planned["walk"])) == 7.5
