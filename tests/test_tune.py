@@ -950,3 +950,56 @@ def test_a_signal_while_a_trial_is_recorded_lets_the_record_finish(tmp_path, mon
     assert logged and logged[-1].startswith("trial 0: ")
     assert (out / "trials" / "0000" / "episodes.csv").is_file()            # its rows kept, and tidied:
     assert not any((out / "trials" / "0000").glob("**/checkpoint*"))      # the record was written whole
+
+
+def test_validate_keeps_each_value_in_the_study_and_refuses_a_study_without_a_complete_trial(tmp_path, monkeypatch):
+    """Asked again on the same seeds, validate reads each trial's value from the study (user attr
+    ``validation``) and runs nothing; on other seeds it starts over. A study whose trials have all
+    failed or been pruned: one line, nothing to validate. Runs and scores stubbed as above."""
+    study = f16_study(tmp_path, "measure")
+    ran = []
+    monkeypatch.setattr(Study, "run_to_end", staticmethod(lambda path, config: ran.append(int(path.name))))
+    monkeypatch.setattr("trl_dgpq.study.validation.load_run", lambda path: path)
+    monkeypatch.setattr("trl_dgpq.study.validation.stage", lambda run, lengths: run)
+    monkeypatch.setattr(Objective, "value", lambda self, run: 10.0 + int(run.name))
+    assert study.validate(1, [1005, 1006], log=lambda line: None) == {1: 11.0, 0: 10.0} and ran == [1, 0]
+    assert study.load().user_attrs["validation"] == {"seeds": [1005, 1006], "values": {"1": 11.0, "0": 10.0}}
+    assert study.validate(1, [1006, 1005], log=lambda line: None) == {1: 11.0, 0: 10.0} and ran == [1, 0]
+    assert study.validate(1, [1007], log=lambda line: None) == {1: 11.0, 0: 10.0} and ran == [1, 0, 1, 0]
+    assert study.load().user_attrs["validation"]["seeds"] == [1007]
+    empty = Study.open(tmp_path / "empty", None, F16, {"objective": "measure", "first": "sampled"})
+    empty.load().add_trial(optuna.trial.create_trial(state=optuna.trial.TrialState.FAIL))
+    with pytest.raises(ValueError, match=r"^no trial has completed: there is nothing to validate$"):
+        empty.validate(1, [1005])
+
+
+def test_a_validation_run_goes_on_from_its_checkpoint_and_starts_over_for_other_settings(tmp_path, stop_run_after):
+    """``run_to_end``: a run stopped after its first batch of rows goes on from its checkpoint (its
+    first rows are the ones written before the stop, wall times and all; the rows end as an
+    uninterrupted run's); a finished run with the same config is left as it is; one whose env or
+    agent settings differ starts over under the new config."""
+    config = resolve_config(env="square", agent="dgpq", seeds=[1005, 1006], episodes=3, checkpoint_every=1)
+    path = tmp_path / "v"
+    stop_run_after(1)
+    with pytest.raises(runner.Interrupted):
+        Study.run_to_end(path, config)
+    first = pd.read_csv(path / "episodes.csv")
+    assert 0 < len(first) < 6
+    Study.run_to_end(path, config)
+    rows = pd.read_csv(path / "episodes.csv")
+    assert len(rows) == 6 and runner.RunFolder(path).finished()
+    pd.testing.assert_frame_equal(rows.iloc[:len(first)], first)       # kept, not run again
+    whole = tmp_path / "whole"
+    Study.run_to_end(whole, config)
+    columns = [c for c in rows.columns if c not in TIMING_COLUMNS]
+    pd.testing.assert_frame_equal(pd.read_csv(whole / "episodes.csv")[columns], rows[columns])
+    before = (path / "episodes.csv").stat().st_mtime_ns
+    Study.run_to_end(path, config)
+    assert (path / "episodes.csv").stat().st_mtime_ns == before
+    paper = dict(env="square", agent="dgpq", seeds=[1005, 1006], episodes=3, checkpoint_every=1, **{"env.reward": "paper"})
+    for other in (resolve_config(**paper), resolve_config(**paper, eps1=0.2)):   # the env differs, then the agent alone
+        assert [other[k] == json.loads((path / "config.json").read_text())[k] for k in ("run", "env", "agent")] == \
+            ([True, False, True] if other["agent"]["eps1"] != 0.2 else [True, True, False])
+        Study.run_to_end(path, other)
+        recorded = json.loads((path / "config.json").read_text())
+        assert all(recorded[k] == other[k] for k in ("run", "env", "agent")) and len(pd.read_csv(path / "episodes.csv")) == 6
