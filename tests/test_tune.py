@@ -1003,3 +1003,23 @@ def test_a_validation_run_goes_on_from_its_checkpoint_and_starts_over_for_other_
         Study.run_to_end(path, other)
         recorded = json.loads((path / "config.json").read_text())
         assert all(recorded[k] == other[k] for k in ("run", "env", "agent")) and len(pd.read_csv(path / "episodes.csv")) == 6
+
+
+def test_a_retry_stopped_after_taking_over_its_folder_is_retried_from_that_folder(tmp_path):
+    """Trial 0 ran in trials/0000 and was stopped: its retry (trial 1, ``retry_of`` 0) renames that
+    folder to trials/0001 when it starts. Stopped in turn, its own retry must go on from 0001, the
+    folder it now has, not from 0000, which is gone (it would start over, losing the run)."""
+    study = Study.open(tmp_path / "study", None, {"env": "square", "agent": "dqn", "episodes": "4"}, {"first": "sampled"})
+    optuna_study = study.load()
+    first = optuna_study.ask()
+    study.folder(0).mkdir(parents=True)
+    study.retry(optuna_study, first, "process 1 is gone")
+    second = optuna_study.ask()
+    assert second.number == 1 and second.user_attrs["retry_of"] == 0
+    os.replace(study.folder(0), study.folder(1))              # what run_stages does as the retry starts
+    study.retry(optuna_study, second, "process 2 is gone")
+    third = optuna_study.ask()
+    assert third.user_attrs["retry_of"] == 1
+    # a retry stopped before it took the folder over hands on the folder it was given
+    study.retry(optuna_study, third, "process 3 is gone")
+    assert optuna_study.ask().user_attrs["retry_of"] == 1
