@@ -145,7 +145,8 @@ def results() -> dict:
 
 
 def report(modules: list[str], sources: list[str], found: dict, env: dict) -> list[str]:
-    """Print killed / total per module and per file; return the survivors' names."""
+    """Print killed / total per module and per file; return the names of the mutants run and not
+    killed (survived, no tests), whose diffs go to survivors.diff."""
     caught = {"killed", "timeout", "caught by type check"}
     survivors = []
     print("\nmutation score (killed / total; a timeout counts as killed)")
@@ -161,10 +162,15 @@ def report(modules: list[str], sources: list[str], found: dict, env: dict) -> li
             if len(files) > 1 and statuses:
                 k = sum(c[x] for x in caught)
                 print(f"      {f}: {k} / {len(statuses)}")
+            unchecked = sorted(name for name, s in statuses.items() if s == "not checked")
             for name, s in sorted(statuses.items()):
-                if s not in caught:
+                if s not in caught and (s != "not checked" or len(unchecked) <= 20):
                     print(f"        {s}: {name}")
+                if s not in caught and s != "not checked":
                     survivors.append(name)
+            if len(unchecked) > 20:   # a run with --only, or stopped early: a count, not a list
+                print(f"        not checked: {len(unchecked)} ({unchecked[0]} ...)")
+    # the diffs of the mutants run and not killed (one `mutmut show` each: not the unchecked ones)
     with open(STAGE / "survivors.diff", "w") as f:
         for name in survivors:
             f.write(subprocess.run([str(Path(sys.executable).parent / "mutmut"), "show", name], cwd=STAGE,
