@@ -500,6 +500,11 @@ def test_a_begun_job_is_estimated_by_its_own_episode_times(tmp_path):
     assert reproduce.seconds_left(str(folders["b"]), plan["b"]["run"]) == pytest.approx(start + 2000 * 0.755)
     sweep.execute(out, [j for j in jobs if j.experiment == "c" or j.seeds == [4]], "local", 1, log=lambda line: None)
     assert reproduce.seconds_left(str(folders["c"]), plan["c"]["run"]) == 0.0
+    # the time-left guide of a reproduction continued costs each job begun there by its own episodes
+    own = reproduce.own_time_left(jobs)
+    assert own == {str(folders["a"]): pytest.approx(start + 0.1 * (20100 - 4950)),
+                   str(folders["b"]): pytest.approx(start + 2000 * 0.755), str(folders["c"]): 0.0,
+                   next(j.folder for j in jobs if j.seeds == [4]): 0.0}
     begun = reproduce.begun(out, plan)
     assert set(begun) == {"a", "b", "c", "d"} and begun["c"] == [(1, 0.0)] and begun["d"] == [(1, 0.0), (1, None)]
     assert reproduce.seconds_left(str(tmp_path / "none"), plan["a"]["run"]) is None

@@ -413,6 +413,11 @@ def job_share(seconds: float, seeds: int, of: int) -> float:
     return JOB_START_S + (seconds - JOB_START_S) * seeds / of
 
 
+def own_time_left(jobs: list) -> Dict[str, float]:
+    """{job folder: its ``seconds_left``} of the jobs begun (or finished) in their folders."""
+    return {j.folder: left for j in jobs if (left := seconds_left(j.folder, j.config["run"])) is not None}
+
+
 def job_cost(planned: dict, found: list, own: Optional[Dict[str, float]] = None):
     """Job -> its estimated seconds (``estimate``'s ``found``, its share of its experiment's seeds), for
     the sweep's time-left guide; a job of an experiment with no estimate at its planned seed-steps times
@@ -708,8 +713,7 @@ def main(argv=None) -> int:
         if args.reuse:
             jobs = sweep.reuse(out, jobs, args.reuse, same=lambda a, b: same_config(a) == same_config(b),
                                log=lambda line: print(line, flush=True))
-        own = {j.folder: left for j in jobs if (left := seconds_left(j.folder, j.config["run"])) is not None}
-        cost = job_cost(planned, found, own)
+        cost = job_cost(planned, found, own_time_left(jobs))
         jobs = in_order([j for j in jobs if j.experiment in now], args.workers, cost)
         print(f"reproduce ({args.scale}) -> {out}: {len(planned)} experiments"
               + (f", {len(now)} of them now" if len(now) < len(planned) else "") + f", {args.workers} workers",
