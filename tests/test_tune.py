@@ -962,7 +962,9 @@ def test_validate_keeps_each_value_in_the_study_and_refuses_a_study_without_a_co
     monkeypatch.setattr("trl_dgpq.study.validation.load_run", lambda path: path)
     monkeypatch.setattr("trl_dgpq.study.validation.stage", lambda run, lengths: run)
     monkeypatch.setattr(Objective, "value", lambda self, run: 10.0 + int(run.name))
-    assert study.validate(1, [1005, 1006], log=lambda line: None) == {1: 11.0, 0: 10.0} and ran == [1, 0]
+    lines = []
+    assert study.validate(1, [1005, 1006], log=lines.append) == {1: 11.0, 0: 10.0} and ran == [1, 0]
+    assert [line.split("(")[1] for line in lines] == ["9 on the tuning seeds)", "5 on the tuning seeds, the base preset)"]
     assert study.load().user_attrs["validation"] == {"seeds": [1005, 1006], "values": {"1": 11.0, "0": 10.0}}
     assert study.validate(1, [1006, 1005], log=lambda line: None) == {1: 11.0, 0: 10.0} and ran == [1, 0]
     assert study.validate(1, [1007], log=lambda line: None) == {1: 11.0, 0: 10.0} and ran == [1, 0, 1, 0]
@@ -971,6 +973,8 @@ def test_validate_keeps_each_value_in_the_study_and_refuses_a_study_without_a_co
     empty.load().add_trial(optuna.trial.create_trial(state=optuna.trial.TrialState.FAIL))
     with pytest.raises(ValueError, match=r"^no trial has completed: there is nothing to validate$"):
         empty.validate(1, [1005])
+    with pytest.raises(ValueError, match=r"^validation seeds \[5, 6\] are reporting seeds: "):
+        study.validation_seeds([6, 5])
 
 
 def test_a_validation_run_goes_on_from_its_checkpoint_and_starts_over_for_other_settings(tmp_path, stop_run_after):
