@@ -678,8 +678,21 @@ def test_a_study_never_replaces_another_studys_preset_unless_forced(tmp_path, mo
     with pytest.raises(SystemExit) as exc:
         tune.main(["--out", str(other), "--trials", "1", "--write-preset"])
     err = capsys.readouterr().err
-    assert exc.value.code == 2 and "would replace preset 'tuned' of dqn on square, written by study 'first'" in err
+    prov = json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]["tuned"]["provenance"]
+    assert exc.value.code == 2 and ("would replace preset 'tuned' of dqn on square, written by study 'first' "
+                                    f"({prov['trials']} trials on seeds {prov['seeds']}, {prov['date']})") in err
     assert "--force" in err
+    # a provenance without its counts (written by hand): each said unknown
+    data = json.loads((tmp_path / "tuned.json").read_text())
+    data["square"]["dqn"]["tuned"]["provenance"] = {"study_name": "by-hand"}
+    (tmp_path / "tuned.json").write_text(json.dumps(data))
+    assert second.replaces("tuned") == ("preset 'tuned' of dqn on square, written by study 'by-hand' "
+                                        "(? trials on seeds ?, ?)")
+    data["square"]["dqn"]["tuned"]["provenance"] = {}
+    (tmp_path / "tuned.json").write_text(json.dumps(data))
+    assert second.replaces("tuned").startswith("preset 'tuned' of dqn on square, written by study '?' (")
+    data["square"]["dqn"]["tuned"]["provenance"] = prov
+    (tmp_path / "tuned.json").write_text(json.dumps(data))
     assert resolve_config(env="square", agent="dqn", preset="tuned")["agent"]["lr"] == 0.004      # untouched
     assert tune.main(["--out", str(other), "--trials", "1", "--write-preset", "--force"]) == 0
     assert "replaced preset 'tuned' of dqn on square, written by study 'first'" in capsys.readouterr().out
