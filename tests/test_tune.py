@@ -986,8 +986,12 @@ def test_validate_keeps_each_value_in_the_study_and_refuses_a_study_without_a_co
     empty.load().add_trial(optuna.trial.create_trial(state=optuna.trial.TrialState.FAIL))
     with pytest.raises(ValueError, match=r"^no trial has completed: there is nothing to validate$"):
         empty.validate(1, [1005])
-    with pytest.raises(ValueError, match=r"^validation seeds \[5, 6\] are reporting seeds: "):
+    with pytest.raises(ValueError, match=r"^validation seeds \[5, 6\] are reporting seeds: .* use e\.g\. 1005-1014$"):
         study.validation_seeds([6, 5])
+    assert study.config["run"]["seeds"] == [1000, 1001, 1002, 1003, 1004]
+    with pytest.raises(ValueError, match=r"^validation seeds \[1003\] are the study's own tuning seeds: validate on "
+                                         r"others, e\.g\. --validation-seeds 1005-1014$"):
+        study.validation_seeds([1003, 1005])
 
 
 def test_a_validation_run_goes_on_from_its_checkpoint_and_starts_over_for_other_settings(tmp_path, stop_run_after):
