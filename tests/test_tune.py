@@ -460,7 +460,8 @@ def test_a_search_range_is_name_low_high_log_uniform():
     from trl_dgpq.tuning import parse_range, with_ranges
     assert parse_range(" eps1=0.1:3") == ("eps1", LogUniform(0.1, 3.0))
     for bad, says in [("eps1", "NAME=LOW:HIGH"), ("eps1=0.1", "NAME=LOW:HIGH"), ("=1:2", "NAME=LOW:HIGH"),
-                      ("eps1=a:3", "NAME=LOW:HIGH"), ("eps1=3:1", "0 < LOW < HIGH"), ("eps1=0:1", "0 < LOW < HIGH")]:
+                      ("eps1=a:3", "NAME=LOW:HIGH"), ("eps1=3:1", "0 < LOW < HIGH"), ("eps1=0:1", "0 < LOW < HIGH"),
+                      ("eps1=2:2", "0 < LOW < HIGH"), ("eps1=lr=1:2", "NAME=LOW:HIGH")]:   # one value; a name with "="
         with pytest.raises(ValueError, match=says):
             parse_range(bad)
     space = {"eps1": LogUniform(1e-4, 0.1), "lipschitz": LogUniform(0.1, 100.0)}
@@ -1044,3 +1045,14 @@ def test_a_retry_stopped_after_taking_over_its_folder_is_retried_from_that_folde
     # a retry stopped before it took the folder over hands on the folder it was given
     study.retry(optuna_study, third, "process 3 is gone")
     assert optuna_study.ask().user_attrs["retry_of"] == 1
+
+
+def test_a_count_of_env_steps_is_a_fraction_of_the_budget_and_at_least_one():
+    """OfBudget: the fraction drawn times the budget, rounded, never below one step (0.01 x 50 rounds
+    to 0: 1); a run budgeted in episodes (budget 0) draws from its fallback range instead."""
+    from trl_dgpq.tuning import IntRange, OfBudget
+    space = OfBudget(0.005, 0.5, otherwise=IntRange(10, 20))
+    assert space.suggest(optuna.trial.FixedTrial({"n_fraction": 0.01}), "n", 50) == 1
+    assert space.suggest(optuna.trial.FixedTrial({"n_fraction": 0.05}), "n", 50) == 2       # 2.5 rounds to even
+    assert space.suggest(optuna.trial.FixedTrial({"n_fraction": 0.25}), "n", 1000) == 250
+    assert space.suggest(optuna.trial.FixedTrial({"n": 12}), "n", 0) == 12
