@@ -512,6 +512,7 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
     report = {j.name: dict(status="finished", seeds=j.seeds, note="finished before") for j in jobs if j not in todo}
     t0, done, finished, merged = time.perf_counter(), [0], [], set()
     started, took = {}, []   # job name -> when it started; [(job, its seconds)] of those that finished
+    pool = workers or os.cpu_count() or 1   # local workers
     names = {j.name for j in todo}
 
     def merge_if_done(name: str) -> None:
@@ -537,8 +538,8 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
         if backend == "local":
             running = [(j, now - started[j.name]) for j in rest if j.name in started]
             pending = [j for j in rest if j.name not in started]
-            busy = min(workers or os.cpu_count() or 1, left)   # the pool refills at once
-            seconds = seconds_left(took, running, pending, workers or os.cpu_count() or 1, cost)
+            busy = min(pool, left)   # the pool refills at once
+            seconds = seconds_left(took, running, pending, pool, cost)
             guess = None if seconds is None else seconds / 60
         else:   # Ray schedules what it was given and does not say when each job starts
             busy, guess = 0, minutes_left(minutes, finished, rest, cost)
@@ -554,7 +555,7 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
         merge_if_done(name)
     if todo:
         if backend == "local":
-            run_local(todo, workers or os.cpu_count() or 1, on_done, on_start)
+            run_local(todo, pool, on_done, on_start)
         else:
             run_ray(todo, ray_address, cpus_per_job, on_done)
     runner.RunFolder(out).write_json(REPORT, report)
