@@ -97,23 +97,40 @@ def minutes_left(minutes: float, done: List[Job], left: List[Job],
     return minutes * (sum(map(cost, left)) - under_way) / spent if spent > 0 else 0.0
 
 
+OVERRUN = 0.25   # a running job past its estimate still has this share of what it has run to go
+
+
+def rate(done: List[tuple], cost: Callable[[Job], float] = planned_seed_steps) -> Optional[float]:
+    """Seconds per unit of ``cost`` the ``done`` jobs took ([(job, seconds from its start to its
+    end)]); None before any has ended with a positive cost."""
+    spent = sum(cost(job) for job, _ in done)
+    return sum(seconds for _, seconds in done) / spent if spent > 0 else None
+
+
+def running_left(expected: float, ran: float) -> float:
+    """A running job's seconds left: what it is expected to take less what it has run, and at least
+    ``OVERRUN`` of what it has run. With no floor a job past its estimate would count 0 left, and the
+    guide would say the sweep is ending while its last long job runs on."""
+    return max(expected - ran, OVERRUN * ran)
+
+
 def seconds_left(done: List[tuple], running: List[tuple], pending: List[Job], workers: int,
                  cost: Callable[[Job], float] = planned_seed_steps) -> Optional[float]:
     """Seconds until the last job ends: every job takes its ``cost`` times the seconds per unit of
-    cost the ``done`` jobs took, each from its own start to its end ([(job, seconds)]); a
-    ``running`` one ([(job, seconds it has run)]) less what it has run; the ``pending`` ones, in
-    the order they start, each to the worker free first. A sum of costs over a rate would miss
-    the tail: one long job left on one of two workers takes all its time, not half. None before
-    any job has ended (no rate yet)."""
+    cost the ``done`` jobs took (``rate``); a ``running`` one ([(job, seconds it has run)]) what it
+    has left (``running_left``); the ``pending`` ones, in the order they start, each to the worker
+    free first. A sum of costs over a rate would miss the tail: one long job left on one of two
+    workers takes all its time, not half. None until a job has finished with a positive cost."""
     import heapq
-    spent = sum(cost(job) for job, _ in done)
-    if spent <= 0:
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    per = rate(done, cost)
+    if per is None:
         return None
-    rate = sum(seconds for _, seconds in done) / spent
-    free = [max(cost(job) * rate - ran, 0.0) for job, ran in running] + [0.0] * max(workers - len(running), 0)
+    free = [running_left(cost(job) * per, ran) for job, ran in running] + [0.0] * max(workers - len(running), 0)
     heapq.heapify(free)
     for job in pending:
-        heapq.heappush(free, heapq.heappop(free) + cost(job) * rate)
+        heapq.heappush(free, heapq.heappop(free) + cost(job) * per)
     return max(free, default=0.0)
 
 
@@ -541,10 +558,13 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
             busy = min(pool, left)   # the pool refills at once
             seconds = seconds_left(took, running, pending, pool, cost)
             guess = None if seconds is None else seconds / 60
+            per = rate(took, cost)
+            over = 0 if per is None else sum(cost(j) * per < ran for j, ran in running)
         else:   # Ray schedules what it was given and does not say when each job starts
-            busy, guess = 0, minutes_left(minutes, finished, rest, cost)
+            busy, guess, over = 0, minutes_left(minutes, finished, rest, cost), 0
         running_text = f" ({busy} running)" if busy else ""
         eta = f", ~{clock(guess)} left at this rate" if left and guess is not None else ""
+        eta += f" ({over} past {'its' if over == 1 else 'their'} estimate)" if eta and over else ""
         line = (f"[{done[0]}/{len(todo)} jobs done, {failed} not finished, {left} to go{running_text}; "
                 f"{minutes:.1f} min{eta}] {job.name}: {result['status']}")
         log(line + (f" -- {result['reason']}" if result.get("reason") else ""))

@@ -8,7 +8,8 @@ output with the time it arrived. Then, from that output and the folder alone:
 - each progress line's guess of the time left against the truth (the sweep's end minus the
   line's time), within 25 % or 6 s (the line prints tenths of a minute);
 - each job's CPU time in its episodes (the rows' ``cpu_s``) against its estimate
-  (``reproduce.job_cost``, what the plan and the guide use): a job's start is not in its rows.
+  (``reproduce.job_cost``, what the plan and the guide use), with and without the start it adds
+  to each job: a job's start is not in its rows.
 The load average at the start and the end says how quiet the machine was. Raw lines, per-job
 figures and loads go to the JSON.
 """
@@ -54,8 +55,27 @@ def per_job(out: Path) -> list:
     rows = []
     for job in jobs:
         df = pd.read_csv(Path(job.folder) / runner.EPISODES, usecols=["cpu_s"])
-        rows.append(dict(job=job.name, estimate_s=round(cost(job), 3), cpu_in_episodes_s=round(float(df.cpu_s.sum()), 3)))
+        rows.append(dict(job=job.name, estimate_s=round(cost(job), 3),
+                         steps_estimate_s=round(cost(job) - reproduce.JOB_START_S, 3),   # a fresh job: one start
+                         cpu_in_episodes_s=round(float(df.cpu_s.sum()), 3)))
     return rows
+
+
+def summary(total: float, points: list, verdicts: list, jobs: list) -> list:
+    """The lines bench.py quick prints: wall times, the guide's hits, CPU time against the estimate."""
+    if not points:
+        return [f"wall {total / 60:.1f} min; no progress line (no job ran)"]
+    sweep_s = points[-1][0]
+    estimate, cpu = sum(j["estimate_s"] for j in jobs), sum(j["cpu_in_episodes_s"] for j in jobs)
+    steps = sum(j.get("steps_estimate_s", j["estimate_s"]) for j in jobs)
+    ratio = f" (x{cpu / estimate:.2f}" if estimate > 0 else " (no estimate"
+    ratio += f"; x{cpu / steps:.2f} its steps alone, {steps / 60:.2f}" if steps > 0 else ""
+    return [f"reproduce --scale quick, {len(jobs)} jobs",
+            f"wall {total / 60:.1f} min: the sweep {sweep_s / 60:.1f}, the report after it {(total - sweep_s) / 60:.1f}",
+            f"time-left guide within 25 % (or 6 s) of the truth at {sum(v['within'] for v in verdicts)} of its "
+            f"{len(verdicts)} reports",
+            f"CPU time in the episodes {cpu / 60:.2f} min of one core against the estimate's {estimate / 60:.2f}"
+            f"{ratio}; the estimate counts each job's start, the rows do not)"]
 
 
 def bench_quick(args) -> None:
@@ -72,24 +92,18 @@ def bench_quick(args) -> None:
             stamped.append((time.perf_counter() - t0, line.rstrip("\n")))
             print(line, end="", flush=True)
     total = time.perf_counter() - t0
-    if proc.returncode != 0:
-        raise SystemExit(f"bench.py quick: the reproduction ended with exit code {proc.returncode}")
     points = guesses(stamped)
-    verdicts = judged(points)
-    jobs = per_job(out)
-    estimate, cpu = sum(j["estimate_s"] for j in jobs), sum(j["cpu_in_episodes_s"] for j in jobs)
-    sweep_s = points[-1][0]
-    within = sum(v["within"] for v in verdicts)
-    print(f"\nreproduce --scale quick, {args.workers} workers, {len(jobs)} jobs; load average {load_start} at the "
-          f"start, {os.getloadavg()} at the end")
-    print(f"wall {total / 60:.1f} min: the sweep {sweep_s / 60:.1f}, the report after it {(total - sweep_s) / 60:.1f}")
-    print(f"time-left guide within 25 % (or 6 s) of the truth at {within} of its {len(verdicts)} reports")
-    print(f"CPU time in the episodes {cpu / 60:.2f} min of one core against the estimate's {estimate / 60:.2f} "
-          f"(x{cpu / estimate:.2f}; the estimate counts each job's start, the rows do not)")
+    verdicts = judged(points) if points else []
+    jobs = per_job(out) if proc.returncode == 0 else []   # a failed run's folders may lack rows
     path = Path(args.out or "bench-quick.json")
-    path.write_text(json.dumps(dict(
+    path.write_text(json.dumps(dict(   # first: a failed run's lines are what tells why
         meta=dict(command=" ".join(command), workers=args.workers, load_average_start=load_start,
-                  load_average_end=os.getloadavg(), date=time.strftime("%Y-%m-%d %H:%M")),
-        wall_s=round(total, 1), sweep_s=round(sweep_s, 1), guides=verdicts, jobs=jobs,
+                  load_average_end=os.getloadavg(), date=time.strftime("%Y-%m-%d %H:%M"), exit_code=proc.returncode),
+        wall_s=round(total, 1), sweep_s=round(points[-1][0], 1) if points else None, guides=verdicts, jobs=jobs,
         lines=[[round(t, 2), line] for t, line in stamped]), indent=1))
-    print(f"wrote {path}; the run stays in {out}")
+    if proc.returncode != 0:
+        raise SystemExit(f"bench.py quick: the reproduction ended with exit code {proc.returncode} (its lines in {path})")
+    for line in summary(total, points, verdicts, jobs):
+        print(line)
+    print(f"wrote {path}; the run stays in {out}; load average {load_start} at the start, {os.getloadavg()} "
+          "at the end")

@@ -25,3 +25,19 @@ def test_each_guess_is_judged_against_the_time_the_sweep_then_took():
     assert [(v["at_s"], v["truth_s"], v["within"]) for v in got] == [
         (10.0, 90.0, True), (40.0, 60.0, False), (70.0, 30.0, False), (96.0, 4.0, True)]
     assert [v["within"] for v in bench_quick.judged(points, tolerance=0.5)] == [True, True, False, True]
+
+
+def test_the_summary_says_so_where_no_job_ran_or_none_has_an_estimate():
+    """No progress line (the run failed before a job ended): one line, not a crash on the empty list;
+    jobs with no estimate: the ratio is left out rather than divided by zero."""
+    assert bench_quick.summary(90.0, [], [], []) == ["wall 1.5 min; no progress line (no job ran)"]
+    lines = bench_quick.summary(120.0, [(60.0, None)], [], [dict(estimate_s=0.0, cpu_in_episodes_s=30.0)])
+    assert lines[1] == "wall 2.0 min: the sweep 1.0, the report after it 1.0"
+    assert lines[2] == "time-left guide within 25 % (or 6 s) of the truth at 0 of its 0 reports"
+    assert lines[3] == ("CPU time in the episodes 0.50 min of one core against the estimate's 0.00 (no estimate; "
+                        "the estimate counts each job's start, the rows do not)")
+    ok = bench_quick.summary(120.0, [(60.0, None)], [dict(within=True), dict(within=False)],
+                             [dict(estimate_s=40.0, steps_estimate_s=39.0, cpu_in_episodes_s=30.0),
+                              dict(estimate_s=20.0, steps_estimate_s=3.0, cpu_in_episodes_s=33.0)])
+    assert ok[2].endswith("at 1 of its 2 reports")
+    assert "1.05 min of one core against the estimate's 1.00 (x1.05; x1.50 its steps alone, 0.70;" in ok[3]

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 
 from trl_dgpq.collectors import runner, sweep
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS, resolve_config
@@ -466,12 +467,18 @@ def test_reproduce_weighs_the_time_left_by_each_jobs_estimated_seconds():
     assert resumed(walk) == pytest.approx(cost(walk)) and resumed(half) == pytest.approx(cost(half))
 
 
+def checkpoint(folder: Path, episodes: list) -> None:
+    """A checkpoint covering each seed's first ``episodes`` (all that ``RunFolder.checkpointed`` reads)."""
+    torch.save(dict(collector=dict(episode=torch.tensor(episodes))), folder / runner.CHECKPOINT)
+
+
 def test_a_begun_job_is_estimated_by_its_own_episode_times(tmp_path):
     """Episodes 1-100 of 3 seeds done, each episode's batch 0.1 e seconds (0.1 e / 3 a seed-row; wall time
     where the rows record no CPU time): the
     line through the second half is t = 0.1 e, so episodes 101-200 take 0.1 (20,100 - 5,050) = 1,505 s
     (a mean of the episodes done would say 505); an env-step budget: its steps left at its time per
-    step over the second half; finished: 0; no episodes yet: no own estimate."""
+    step over the second half; finished: 0; no episodes yet: no own estimate. Only the rows the
+    checkpoint covers count: after a hard kill a resume runs those after it again."""
     out = tmp_path / "s"
     plan = {"a": resolve_config(env="corridor", agent="constant", seeds=[0, 1, 2], episodes=200),
             "b": resolve_config(env="corridor", agent="constant", seeds=[0, 1, 2], episodes=1000, env_steps=3000),
@@ -485,6 +492,15 @@ def test_a_begun_job_is_estimated_by_its_own_episode_times(tmp_path):
     folders["a"].mkdir(parents=True)
     rows.to_csv(folders["a"] / "episodes.csv", index=False)
     start = reproduce.JOB_START_S
+    assert reproduce.seconds_left(str(folders["a"]), plan["a"]["run"]) is None          # no checkpoint: from the start
+    checkpoint(folders["a"], [90, 90, 90])                  # killed 10 episodes after its last checkpoint
+    assert reproduce.seconds_left(str(folders["a"]), plan["a"]["run"]) == pytest.approx(start + 0.1 * (20100 - 4095))
+    # the latest checkpoint damaged: the previous one, as a resume falls back to it
+    os.replace(folders["a"] / runner.CHECKPOINT, folders["a"] / runner.PREVIOUS)
+    (folders["a"] / runner.CHECKPOINT).write_bytes(b"not a checkpoint")
+    assert reproduce.seconds_left(str(folders["a"]), plan["a"]["run"]) == pytest.approx(start + 0.1 * (20100 - 4095))
+    (folders["a"] / runner.PREVIOUS).unlink()
+    checkpoint(folders["a"], [100, 100, 100])
     assert reproduce.seconds_left(str(folders["a"]), plan["a"]["run"]) == pytest.approx(start + 1505)
     # with the CPU time recorded (here half the wall time: another process shared the core), by that
     rows.assign(cpu_s=rows.wall_s / 2).to_csv(folders["a"] / "episodes.csv", index=False)
@@ -497,10 +513,15 @@ def test_a_begun_job_is_estimated_by_its_own_episode_times(tmp_path):
     # 500 steps: 2,000 steps left at 0.755 s each
     folders["b"].mkdir(parents=True)
     rows.to_csv(folders["b"] / "episodes.csv", index=False)
+    checkpoint(folders["b"], [100, 100, 100])
     assert reproduce.seconds_left(str(folders["b"]), plan["b"]["run"]) == pytest.approx(start + 2000 * 0.755)
     sweep.execute(out, [j for j in jobs if j.experiment == "c" or j.seeds == [4]], "local", 1, log=lambda line: None)
     assert reproduce.seconds_left(str(folders["c"]), plan["c"]["run"]) == 0.0
-    # the time-left guide of a reproduction continued costs each job begun there by its own episodes
+    # the time-left guide of a reproduction continued costs each job begun there by its own episodes;
+    # one whose rows cannot be read is left to its estimate (the reproduction goes on)
+    damaged = Path(next(j.folder for j in jobs if j.seeds == [5]))
+    damaged.mkdir(parents=True)
+    (damaged / "episodes.csv").write_text("seed,episode,steps\n5,1,2,3,4\n")
     own = reproduce.own_time_left(jobs)
     assert own == {str(folders["a"]): pytest.approx(start + 0.1 * (20100 - 4950)),
                    str(folders["b"]): pytest.approx(start + 2000 * 0.755), str(folders["c"]): 0.0,
@@ -592,10 +613,44 @@ def test_the_time_left_gives_each_job_left_to_the_worker_free_first_at_the_rate_
     assert sweep.seconds_left(took, [(c, 15.0)], [d, e], 1, cost) == pytest.approx(125.0)   # one after another
     assert sweep.seconds_left(took, [(c, 15.0)], [d, e], 3, cost) == pytest.approx(80.0)    # each its own worker
     assert sweep.seconds_left(took, [(c, 15.0)], [], 2, cost) == pytest.approx(25.0)
-    assert sweep.seconds_left(took, [(c, 50.0)], [d], 2, cost) == pytest.approx(20.0)       # c past its guess: 0 left
+    # a job past its guess (c: 40 s) still has a quarter of what it has run to go, not 0: else the
+    # guide says the sweep is ending while its last long job runs on
+    assert sweep.seconds_left(took, [(c, 50.0)], [], 2, cost) == pytest.approx(12.5)
+    assert sweep.seconds_left(took, [(c, 36.0)], [], 2, cost) == pytest.approx(9.0)          # the floor above 4 s
+    assert sweep.seconds_left(took, [(c, 30.0)], [], 2, cost) == pytest.approx(10.0)         # 10 s above the floor
+    assert sweep.seconds_left(took, [(c, 50.0)], [d], 2, cost) == pytest.approx(20.0)
     assert sweep.seconds_left(took, [], [], 2, cost) == 0.0
     assert sweep.seconds_left([], [(c, 15.0)], [d], 2, cost) is None                        # no rate yet
     assert sweep.seconds_left([(a, 5.0)], [], [d], 2, lambda job: 0.0) is None
+    with pytest.raises(ValueError, match="workers must be >= 1, got 0"):
+        sweep.seconds_left(took, [], [d], 0, cost)
+
+
+def test_the_progress_line_says_how_many_running_jobs_are_past_their_estimate(tmp_path, monkeypatch):
+    """Three jobs of one unit each on two workers (the backend and the clock stubbed): a ends at 10 s
+    while b, begun with it, has run its 10 s, not past; c begun at 10 ends at 30, the rate now
+    15 s a unit, and b has run 30: one past its estimate, a quarter of its 30 s left (7.5 s)."""
+    experiments = {"x": resolve_config(env="corridor", agent="constant", seeds=[0, 1, 2], episodes=1)}
+    jobs = sweep.plan(experiments, tmp_path / "s", 1)
+    sweep.create(tmp_path / "s", experiments, jobs)
+    now = [0.0]
+    monkeypatch.setattr(sweep.time, "perf_counter", lambda: now[0])
+    a, b, c = jobs
+
+    def run_local(todo, workers, on_done, on_start):
+        on_start(a), on_start(b)
+        now[0] = 10.0
+        on_done(a, dict(status="finished"))
+        on_start(c)
+        now[0] = 30.0
+        on_done(c, dict(status="finished"))
+        on_done(b, dict(status="finished"))
+    monkeypatch.setattr(sweep, "run_local", run_local)
+    lines = []
+    sweep.execute(tmp_path / "s", jobs, "local", 2, log=lines.append, cost=lambda job: 1.0)
+    progress = [line.split("; ")[1].split("]")[0] for line in lines if "jobs done" in line]
+    assert progress == ["0.2 min, ~0.2 min left at this rate",
+                        "0.5 min, ~0.1 min left at this rate (1 past its estimate)", "0.5 min"]
 
 
 def test_makespan_gives_each_job_longest_first_to_the_worker_free_first():

@@ -357,11 +357,14 @@ def like(config: dict, measured: dict, rows_of) -> tuple:
     return best, f"like {best}, {count(fewest, 'setting')} apart"
 
 
-# What a job costs besides its steps (a worker forked, its env and agent built, its files written):
-# the published rows' wall_s leave it out. Measured 2026-11-28: 0.3-1.1 s for a one-episode job from
-# a warm forkserver (load ~6). Replayed on two quick-scale runs (108 jobs at load ~7, 58 at ~3), the
-# sweep's time-left guide was within 25 % (or 6 s) at 86 of 107 and 57 of 57 of its reports with
-# 1 s; with the 3 s used before, at 46 and 57 (it took the many small jobs at the end for longer ones).
+# What a job costs besides its steps at the published per-seed rate: fitted, not measured. A job's start
+# (a worker forked, its env and agent built, its files written; not in the rows' wall_s) took 0.3-1.1 s
+# for a one-episode job from a warm forkserver (load ~6, 2026-11-28); the rest stands for what scaling
+# a published batch per seed misses at small batches (quiet, the quick scale's steps alone ran 1.33x
+# their estimate). Replayed on two quick-scale runs (108 jobs at load ~7, 58 at ~3), the sweep's
+# time-left guide was within 25 % (or 6 s) at 86 of 107 and 57 of 57 of its reports with 1 s; with
+# 3 s, at 46 and 57 (it took the many small jobs at the end for longer ones). Measured quiet with 1 s:
+# 90 of 107 (docs/reproducing.md).
 JOB_START_S = 1.0
 PUBLICATION = Path(__file__).resolve().parents[2] / "results" / "report"   # the times --plan estimates from
 
@@ -415,7 +418,16 @@ def job_share(seconds: float, seeds: int, of: int) -> float:
 
 def own_time_left(jobs: list) -> Dict[str, float]:
     """{job folder: its ``seconds_left``} of the jobs begun (or finished) in their folders."""
-    return {j.folder: left for j in jobs if (left := seconds_left(j.folder, j.config["run"])) is not None}
+    return {j.folder: left for j in jobs if (left := readable_time_left(j)) is not None}
+
+
+def readable_time_left(job) -> Optional[float]:
+    """``seconds_left`` of ``job``'s folder; None (left to its estimate) where the folder cannot be
+    read: a guide is no reason to stop a reproduction, nor its plan."""
+    try:
+        return seconds_left(job.folder, job.config["run"])
+    except (ValueError, OSError, KeyError):
+        return None
 
 
 def job_cost(planned: dict, found: list, own: Optional[Dict[str, float]] = None):
@@ -470,8 +482,9 @@ def job_seconds(planned: dict, found: list, groups: Dict[str, int]) -> List[floa
 
 
 def seconds_left(folder: str, run: dict) -> Optional[float]:
-    """A begun job's time left by its own episodes, in seconds of one core: 0 if finished; None if it has
-    no episodes yet. Its batch CPU time per episode (every seed's ``cpu_s``: the wall time rises with
+    """A begun job's time left by its own episodes, in seconds of one core: 0 if finished; None if no
+    checkpoint covers an episode yet. Only the rows its checkpoint covers count (a resume runs those
+    after it again: after a hard kill, up to ``checkpoint_every`` episodes). Its batch CPU time per episode (every seed's ``cpu_s``: the wall time rises with
     whatever else shares the cores, the CPU time does not; ``wall_s`` for rows without it), fitted by a
     line over the second half of the episodes all its seeds ran, summed over the episodes left: an
     F-16 DGPQ job without a potential pays more each episode as its Q̂ grows, which a mean would miss.
@@ -486,6 +499,10 @@ def seconds_left(folder: str, run: dict) -> Optional[float]:
                                                                                 "cpu_s"))
     except (FileNotFoundError, pd.errors.EmptyDataError):
         return None
+    covered = folder.checkpointed(run["seeds"])
+    if covered is None:
+        return None
+    df = df[df.episode <= df.seed.map(covered)]
     df["spent"] = df["cpu_s"].fillna(df["wall_s"]) if "cpu_s" in df else df["wall_s"]
     per = df.groupby("episode").agg(seeds=("seed", "nunique"), steps=("steps", "max"), spent=("spent", "sum"))
     per = per[per.seeds == len(run["seeds"])]
@@ -515,7 +532,7 @@ def begun(out: Path, planned: dict) -> Dict[str, list]:
     got: Dict[str, list] = {}
     for job in jobs:
         if job.experiment in planned:
-            got.setdefault(job.experiment, []).append((len(job.seeds), seconds_left(job.folder, job.config["run"])))
+            got.setdefault(job.experiment, []).append((len(job.seeds), readable_time_left(job)))
     return {name: left for name, left in got.items() if any(s is not None for _, s in left)}
 
 
