@@ -60,10 +60,10 @@ def test_publish_keeps_the_rows_and_rebuilds_every_file_from_them_alone(tmp_path
     (to / "stale.png").write_text("x")                       # a figure an earlier publication drew: replaced whole
     reproduce.publish(out, to, "smoke")
     assert not (to / "stale.png").exists() and not (to.parent / ".report.new").exists()
-    # the rows: every (seed, episode) the runs wrote, floats to 7 digits, less cpu_s and us_per_step
+    # the rows: every (seed, episode) the runs wrote, floats to 7 digits, less us_per_step (wall_s / steps)
     kept = pd.read_csv(to / "data" / "c1.csv.xz")
     ran = pd.read_csv(out / "c1" / "episodes.csv")
-    assert list(kept.columns) == [c for c in ran.columns if c not in ("cpu_s", "us_per_step")]
+    assert list(kept.columns) == [c for c in ran.columns if c != "us_per_step"]
     assert len(kept) == len(ran) == 6 and (kept["return"] == ran["return"]).all()
     assert kept["wall_s"].to_numpy() == pytest.approx(ran["wall_s"].to_numpy(), rel=1e-6)
     config = json.loads((to / "data" / "c1.json").read_text())
@@ -162,7 +162,7 @@ def test_the_published_data_stay_small():
     assert published.size(to) < 40 * 2 ** 20   # docs/reproducing.md: 29.4 MiB with liquidation (2026-11-27)
     for path in (to / "data").glob("*.csv.xz"):
         with lzma.open(path, "rt") as f:
-            assert "cpu_s" not in f.readline()
+            assert "us_per_step" not in f.readline()
 
 
 def test_a_checkpoints_figure_is_drawn_again_from_what_it_kept(tmp_path, monkeypatch):
@@ -206,7 +206,8 @@ def test_the_published_rows_configs_and_manifest_by_hand(tmp_path, monkeypatch):
     assert sorted(p.name for p in written) == ["e.csv.xz", "e.json", "manifest.json"]
     assert published.manifest(to) == {"scale": "s", "experiments": ["e"]}
     with lzma.open(to / "data" / "e.csv.xz", "rt") as f:
-        assert f.read().splitlines() == ["seed,episode,steps,wall_s", "11,1,5,0.1234568", "10,2,7,1", "10,1,3,2"]
+        assert f.read().splitlines() == ["seed,episode,steps,wall_s,cpu_s", "11,1,5,0.1234568,9", "10,2,7,1,9",
+                                         "10,1,3,2,9"]
     run = published.load(to, "e")
     assert run.path == to / "data" / "e" and list(run.df.index) == [0, 1, 2] and "index" not in run.df
     lean = tmp_path / "lean" / "f"                         # a run that never wrote cpu_s: kept as it is

@@ -978,6 +978,13 @@ def test_the_plan_estimates_each_experiment_from_the_published_one_like_it(tmp_p
     assert got["e"] == pytest.approx(1 + 9 * 16 / 30) and got["g"] == pytest.approx(1 + 9 * 16 / 30)
     small = {"h": resolve_config(env="corridor", agent="constant", seeds=[10], episodes=2, env_steps=9)}
     assert reproduce.estimate(small, tmp_path / "pub")[0][1] == pytest.approx(1 + 2 * 3 * 16 / 30)  # its 2 episodes first
+    # rows that record their CPU time are costed by it (the wall time grows with whatever shares the
+    # cores); a row without it, by its wall time: episodes 1-4 at 0.5 s of CPU, the rest as before
+    pd.DataFrame(dict(seed=5, episode=range(1, 11), steps=3, wall_s=[1.0] * 4 + [2.0] * 6,
+                      cpu_s=[0.5] * 4 + [None] * 6)).to_csv(data / "a.csv.xz", index=False)
+    got = {name: seconds for name, seconds, _ in reproduce.estimate(planned, tmp_path / "pub")}
+    assert got["b"] == pytest.approx(1 + 2 * 4 * 0.5) and got["c"] == pytest.approx(1 + 2 * (10 * 1.4 + 10 * 2))
+    assert "CPU time where recorded, else wall time" in reproduce.plan_text(planned, tmp_path / "pub")
     assert reproduce.main(["--scale", "smoke", "--only", "f16", "--plan", "--experiments", "f16-pd"]) == 0
     assert capsys.readouterr().out.startswith("  f16-pd: 1 seed x 3, ~")
 

@@ -13,8 +13,9 @@ summary.md and the figures drawn from episodes are *rebuilt from DIR/data alone*
                                 sweep was made with, what of the env's model it uses, and each
                                 job's seeds and commit
     DIR/data/<experiment>.csv.xz  every (seed, episode) row the runs wrote, floats to 7
-                                significant digits, less the columns no report reads (cpu_s,
-                                us_per_step: wall_s / steps)
+                                significant digits, less us_per_step (wall_s / steps); cpu_s
+                                kept, what ``reproduce --plan`` estimates a run's cost by (the
+                                wall time grows with the load; +4 % of the file)
 
 Four figures are drawn from a trained agent's checkpoint, not from episodes, and checkpoints are
 not kept. Three keep what they draw as plain data beside them (``figures.save_drawn``: Q̂ over
@@ -31,7 +32,7 @@ from pathlib import Path
 from .runs import Run, read_csv_exact
 
 DATA, MANIFEST = "data", "manifest.json"
-DROPPED = ("cpu_s", "us_per_step")
+DROPPED = ("us_per_step",)
 FLOAT_FORMAT = "%.7g"
 # what a checkpoint drew: the data three figures are drawn from, and the animation as it was drawn
 CHECKPOINT_FIGURES = ("square/qhat.json.xz", "push/push.gif", "f16/f16_trace.json.xz", "liquidation/holdings.json.xz")

@@ -372,8 +372,9 @@ PUBLICATION = Path(__file__).resolve().parents[2] / "results" / "report"   # the
 def estimate(planned: dict, publication: Path) -> list:
     """[(name, seconds or None, how)] of each planned experiment, one job each, from a published
     experiment like it (``like``): with an env-step budget, its seeds times the budget times that
-    one's wall time per step; else its seeds times its episodes times that one's wall time per
-    seed-episode over its first as many episodes (learning changes what an episode costs); plus
+    one's time per step; else its seeds times its episodes times that one's time per seed-episode
+    over its first as many episodes (learning changes what an episode costs): CPU time where its
+    rows record it, else wall time (published before, on 2 loaded cores); plus
     ``JOB_START_S``. A batch of another size costs otherwise per seed: an estimate, not a promise."""
     from functools import cache
 
@@ -388,8 +389,10 @@ def estimate(planned: dict, publication: Path) -> list:
                 measured[name] = {**sections, "_same": same_config(sections)}
 
     @cache
-    def rows_of(name: str):   # the rows of the experiments chosen (or tied), each read once
-        return published.load(publication, name).df[["episode", "steps", "wall_s"]]
+    def rows_of(name: str):   # the rows of the experiments chosen (or tied), each read once: their time in
+        df = published.load(publication, name).df   # CPU where recorded (the wall time grows with the load)
+        spent = df["cpu_s"].fillna(df["wall_s"]) if "cpu_s" in df else df["wall_s"]
+        return df[["episode", "steps"]].assign(wall_s=spent)
     out = []
     for name, config in planned.items():
         source, how = like(config, measured, rows_of)
@@ -579,7 +582,7 @@ def plan_text(planned: dict, publication: Path, max_minutes: Optional[float] = N
     return ("\n".join(lines) + f"\n{len(found)} experiments, {how}: ~{hours(total)} of one core{under_way}"
             + (f" and wall time {cores}, both without the {unknown} not estimated" if unknown else f"; wall time {cores}")
             + " (longest job first; "
-            f"times per seed-episode from {publication}, measured on 2 loaded cores)\n")
+            f"times per seed-episode from {publication}, CPU time where recorded, else wall time on 2 loaded cores)\n")
 
 
 def publish(out: Path, to: Path, scale: str, only=None) -> list:
