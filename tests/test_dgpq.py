@@ -272,3 +272,58 @@ def test_state_scale_refuses_bad_weights(scale, match):
     with pytest.raises(ValueError, match=match):
         resolve_config(seeds=[0], state_scale=scale)
 
+
+
+# ---------------------------------------------------------------- storage and the kernel's schedule
+def test_the_memory_estimate_is_q_hats_storage_and_each_gps():
+    """3 seeds x 4 actions on the square (2 coordinates): Q̂ holds 64 pairs of (2 coordinates, a value)
+    in float64 per seed and action, 3 x 4 x 64 x 3 x 8 = 18,432 bytes, as allocated; each sparse GP
+    with budget 100 (m = 101 basis slots) 8 (2m + m + 2 m^2) = 8 (202 + 101 + 20,402) = 165,640 bytes;
+    each exact GP of capacity 64, 8 x 64 x (2 + 2 + 64) = 34,816."""
+    from trl_dgpq.collectors.experiment import build, memory_estimate, resolve_config
+    for gp, per_gp in (("sparse", 165_640), ("exact", 34_816)):
+        config = resolve_config(env="square", preset="shaped", seeds=[0, 1, 2], episodes=1, gp=gp, budget=100,
+                                capacity=64, qhat_capacity=64)
+        _, agent = build(config)
+        allocated = sum(v.numel() * v.element_size() for v in (agent.qhat.s, agent.qhat.mu))
+        assert allocated == 18_432
+        assert memory_estimate(config) == 18_432 + 3 * 4 * per_gp
+
+
+def test_the_growth_a_step_may_allocate_is_q_hats_doubling_and_the_exact_gps():
+    """Capacity 1 for Q̂ and for the exact GP, 1 seed, 2 actions, 1 dimension: nothing to grow at the
+    start; after one add (q = Q̂: no overwrite) the GP of action 1 is full and every GP of the seed
+    doubles its buffers at the next add; after an overwrite Q̂ is full too and doubling copies its
+    (2 actions x 1 slot) x (1 coordinate + 1 value) x 8 bytes into twice that, 64 bytes. A sparse GP has
+    a fixed budget: only Q̂'s."""
+    ag = agent_1d(qhat_capacity=1, capacity=1)
+    assert ag.growth_bytes() == 0
+    step(ag, 0.4, 1, 5.0, 0.5)                            # GP_1 takes a point, Q̂ unchanged
+    gp_doubling = ag.gp.growth_bytes()
+    assert gp_doubling > 0 and ag.growth_bytes() == gp_doubling
+    step(ag, 0.5, 0, 1.0, 0.6)                            # an overwrite: Q̂ full, every GP emptied
+    assert ag.qhat.size().tolist() == [1] and ag.gp.size.tolist() == [[0, 0]]
+    assert ag.growth_bytes() == 64 + ag.gp.growth_bytes()
+    sparse = agent_1d(qhat_capacity=1, gp="sparse")
+    step(sparse, 0.5, 0, 1.0, 0.6)
+    assert sparse.qhat.size().tolist() == [1] and sparse.growth_bytes() == 64
+
+
+def test_the_kernel_is_trained_with_its_settings_once_a_gp_holds_enough_new_points(monkeypatch):
+    """Manifold kernel, every 2 new points if the GP then holds at least 2: the fit is called with
+    the config's steps, learning rate and minimum, for the GPs due only, each counted once per
+    seed; a GP holding exactly the minimum is due."""
+    import trl_dgpq.dgpq as dgpq_module
+    calls = []
+    monkeypatch.setattr(dgpq_module, "fit", lambda gp, due, **kw: calls.append((due.clone(), kw)))
+    ag = agent_1d(seeds=(0, 1), kernel="manifold", kernel_train_every=2, kernel_min_points=2,
+                  kernel_train_steps=7, kernel_lr=0.003, sigma_tol2=1e-6, eps1=100.0)   # no overwrite: GPs keep points
+    two = torch.tensor([False, False])
+    ag.learn(t([[0.1], [0.1]]), torch.tensor([1, 1]), t([5.0, 5.0]), t([[0.5], [0.5]]), two)
+    assert calls == [] and ag.gp.size.tolist() == [[0, 1], [0, 1]]
+    ag.learn(t([[0.3], [0.3]]), torch.tensor([1, 0]), t([5.0, 5.0]), t([[0.5], [0.5]]), two)
+    assert ag.gp.size.tolist() == [[0, 2], [1, 1]]          # seed 0's GP_1 holds 2 = the minimum
+    (due, kw), = calls
+    assert due.tolist() == [[False, True], [False, False]]
+    assert kw == dict(steps=7, lr=0.003, min_points=2)
+    assert ag.kernel_fits.tolist() == [1, 0] and ag.since_fit.tolist() == [[0, 0], [1, 1]]
