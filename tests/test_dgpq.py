@@ -327,3 +327,40 @@ def test_the_kernel_is_trained_with_its_settings_once_a_gp_holds_enough_new_poin
     assert due.tolist() == [[False, True], [False, False]]
     assert kw == dict(steps=7, lr=0.003, min_points=2)
     assert ag.kernel_fits.tolist() == [1, 0] and ag.since_fit.tolist() == [[0, 0], [1, 1]]
+
+
+def test_observe_learns_from_the_reward_shaped_by_the_envs_potential_at_its_own_gamma():
+    """A transition with potentials Φ(s) = 0.5 and Φ(s') = 2, reward 1, gamma 0.5: DGPQ learns from
+    1 + 0.5 x 2 - 0.5 = 1.5, so q_t = 1.5 + 0.5 V_max = 6.5 (Q̂ empty); at a terminal s' Φ(s') is 0:
+    1 - 0.5 = 0.5, with no bootstrap."""
+    for terminated, expect in ((False, 6.5), (True, 0.5)):
+        ag = agent_1d()
+        td = TensorDict({"observation": t([[0.5]]), "action": torch.tensor([0]), "potential": t([0.5]),
+                         "next": TensorDict({"observation": t([[0.6]]), "reward": t([1.0]), "potential": t([2.0]),
+                                             "terminated": torch.tensor([terminated])}, [1])}, [1])
+        assert ag.observe(td)["q_target"].item() == pytest.approx(expect)
+
+
+def test_an_overwrite_leaves_the_memo_of_q_hat_at_s_next_current():
+    """After step 6 the memoised Q̂(s_{t+1}) is brought up to date with the new pair rather than
+    thrown away (the next step's action reads it): its version is Q̂'s and its values are a fresh
+    evaluation's, min(10, 6 + L d) at s' = 0.6 for action 0."""
+    ag = agent_1d()
+    s_next = t([[0.6]])
+    out = ag.learn(t([[0.5]]), torch.tensor([0]), t([1.0]), s_next, torch.tensor([False]))
+    assert out["update"].item()
+    m_s, m_version, m_q = ag._memo
+    assert m_s is s_next and m_version == ag.qhat.version
+    assert torch.equal(m_q, ag.qhat(s_next)) and m_q[0, 0].item() < 10.0
+
+
+def test_the_episode_counters_are_per_seed():
+    """Each counter the CSV records is one number per seed: Q̂'s pairs, its overwrites, the points its
+    GPs hold over every action, the adds."""
+    ag = agent_1d(seeds=(0, 1))
+    ag.learn(t([[0.4], [0.4]]), torch.tensor([1, 0]), t([5.0, 5.0]), t([[0.5], [0.5]]), torch.tensor([False, False]))
+    ag.learn(t([[0.9], [0.4]]), torch.tensor([0, 1]), t([5.0, 5.0]), t([[0.5], [0.5]]), torch.tensor([False, False]))
+    stats = ag.episode_stats()
+    assert sorted(stats) == ["gp_adds", "gp_size", "qhat_size", "qhat_updates"]
+    assert {k: v.tolist() for k, v in stats.items()} == dict(qhat_size=[0, 0], qhat_updates=[0, 0],
+                                                             gp_size=[2, 2], gp_adds=[2, 2])
