@@ -404,8 +404,8 @@ class RunFolder:
             try:
                 state = torch.load(self.file(name), mmap=True, weights_only=True)
                 return dict(zip(seeds, state["collector"]["episode"].tolist()))
-            except Exception:   # missing or damaged: the next, as load_checkpoint falls back
-                continue
+            except Exception:   # missing or damaged: the next, as load_checkpoint falls back (its format
+                continue        # unchecked: a guide's count, not a resume)
         return None
 
     def earlier_checkpoint_held(self, latest: Optional[dict], seeds) -> Optional[tuple]:

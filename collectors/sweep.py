@@ -97,7 +97,7 @@ def minutes_left(minutes: float, done: List[Job], left: List[Job],
     return minutes * (sum(map(cost, left)) - under_way) / spent if spent > 0 else 0.0
 
 
-OVERRUN = 0.25   # a running job past its estimate still has this share of what it has run to go
+OVERRUN = 0.25   # a running job has at least this share of what it has run to go (from 80 % of its estimate on)
 
 
 def rate(done: List[tuple], cost: Callable[[Job], float] = planned_seed_steps) -> Optional[float]:

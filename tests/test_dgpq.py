@@ -357,10 +357,12 @@ def test_an_overwrite_leaves_the_memo_of_q_hat_at_s_next_current():
 def test_the_episode_counters_are_per_seed():
     """Each counter the CSV records is one number per seed: Q̂'s pairs, its overwrites, the points its
     GPs hold over every action, the adds."""
-    ag = agent_1d(seeds=(0, 1))
-    ag.learn(t([[0.4], [0.4]]), torch.tensor([1, 0]), t([5.0, 5.0]), t([[0.5], [0.5]]), torch.tensor([False, False]))
-    ag.learn(t([[0.9], [0.4]]), torch.tensor([0, 1]), t([5.0, 5.0]), t([[0.5], [0.5]]), torch.tensor([False, False]))
+    ag = agent_1d(seeds=(0, 1))                    # q = 5 + 0.5 x 10 = Q̂: every add, no overwrite
+    ag.learn(t([[0.1], [0.1]]), torch.tensor([0, 0]), t([5.0, 5.0]), t([[0.5], [0.5]]), torch.tensor([False, False]))
+    ag.learn(t([[0.9], [0.9]]), torch.tensor([0, 0]), t([5.0, 5.0]), t([[0.5], [0.5]]), torch.tensor([False, False]),
+             active=torch.tensor([True, False]))
+    assert ag.gp.size.tolist() == [[2, 0], [1, 0]]  # summed over actions 2 and 1; over seeds it would be 3 and 0
     stats = ag.episode_stats()
     assert sorted(stats) == ["gp_adds", "gp_size", "qhat_size", "qhat_updates"]
     assert {k: v.tolist() for k, v in stats.items()} == dict(qhat_size=[0, 0], qhat_updates=[0, 0],
-                                                             gp_size=[2, 2], gp_adds=[2, 2])
+                                                             gp_size=[2, 1], gp_adds=[2, 1])

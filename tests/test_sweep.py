@@ -472,6 +472,21 @@ def checkpoint(folder: Path, episodes: list) -> None:
     torch.save(dict(collector=dict(episode=torch.tensor(episodes))), folder / runner.CHECKPOINT)
 
 
+def test_a_checkpoint_says_how_many_episodes_each_seed_keeps_in_the_runs_seed_order(tmp_path):
+    """Seeds 7, 3, 5 (not sorted) with 1, 2 and 3 episodes in the latest checkpoint; a damaged latest one:
+    the previous; neither readable: None."""
+    folder = runner.RunFolder(tmp_path / "r")
+    folder.path.mkdir()
+    assert folder.checkpointed([7, 3, 5]) is None
+    checkpoint(folder.path, [1, 2, 3])
+    assert folder.checkpointed([7, 3, 5]) == {7: 1, 3: 2, 5: 3}
+    os.replace(folder.file(runner.CHECKPOINT), folder.file(runner.PREVIOUS))
+    folder.file(runner.CHECKPOINT).write_bytes(b"damaged")
+    assert folder.checkpointed([7, 3, 5]) == {7: 1, 3: 2, 5: 3}
+    folder.file(runner.PREVIOUS).write_bytes(b"damaged too")
+    assert folder.checkpointed([7, 3, 5]) is None
+
+
 def test_a_begun_job_is_estimated_by_its_own_episode_times(tmp_path):
     """Episodes 1-100 of 3 seeds done, each episode's batch 0.1 e seconds (0.1 e / 3 a seed-row; wall time
     where the rows record no CPU time): the
@@ -521,7 +536,10 @@ def test_a_begun_job_is_estimated_by_its_own_episode_times(tmp_path):
     # one whose rows cannot be read is left to its estimate (the reproduction goes on)
     damaged = Path(next(j.folder for j in jobs if j.seeds == [5]))
     damaged.mkdir(parents=True)
-    (damaged / "episodes.csv").write_text("seed,episode,steps\n5,1,2,3,4\n")
+    (damaged / "episodes.csv").write_text("seed,episode\n5,1\n")     # no time columns
+    checkpoint(damaged, [1])
+    with pytest.raises(KeyError):
+        reproduce.seconds_left(str(damaged), plan["d"]["run"])
     own = reproduce.own_time_left(jobs)
     assert own == {str(folders["a"]): pytest.approx(start + 0.1 * (20100 - 4950)),
                    str(folders["b"]): pytest.approx(start + 2000 * 0.755), str(folders["c"]): 0.0,

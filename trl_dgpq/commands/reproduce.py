@@ -364,7 +364,7 @@ def like(config: dict, measured: dict, rows_of) -> tuple:
 # their estimate). Replayed on two quick-scale runs (108 jobs at load ~7, 58 at ~3), the sweep's
 # time-left guide was within 25 % (or 6 s) at 86 of 107 and 57 of 57 of its reports with 1 s; with
 # 3 s, at 46 and 57 (it took the many small jobs at the end for longer ones). Measured quiet with 1 s:
-# 90 of 107 (docs/reproducing.md).
+# 90 of 107 (docs/reproducing.md). All three before a running job kept a floor (sweep.running_left).
 JOB_START_S = 1.0
 PUBLICATION = Path(__file__).resolve().parents[2] / "results" / "report"   # the times --plan estimates from
 
@@ -429,7 +429,7 @@ def readable_time_left(job) -> Optional[float]:
     read: a guide is no reason to stop a reproduction, nor its plan."""
     try:
         return seconds_left(job.folder, job.config["run"])
-    except (ValueError, OSError, KeyError):
+    except (ValueError, OSError, KeyError, TypeError, AttributeError):   # damaged rows, a missing column
         return None
 
 
@@ -505,7 +505,7 @@ def seconds_left(folder: str, run: dict) -> Optional[float]:
     covered = folder.checkpointed(run["seeds"])
     if covered is None:
         return None
-    df = df[df.episode <= df.seed.map(covered)]
+    df = df[df["episode"] <= df["seed"].map(covered)].copy()
     df["spent"] = df["cpu_s"].fillna(df["wall_s"]) if "cpu_s" in df else df["wall_s"]
     per = df.groupby("episode").agg(seeds=("seed", "nunique"), steps=("steps", "max"), spent=("spent", "sum"))
     per = per[per.seeds == len(run["seeds"])]
