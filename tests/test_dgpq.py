@@ -366,3 +366,25 @@ def test_the_episode_counters_are_per_seed():
     assert sorted(stats) == ["gp_adds", "gp_size", "qhat_size", "qhat_updates"]
     assert {k: v.tolist() for k, v in stats.items()} == dict(qhat_size=[0, 0], qhat_updates=[0, 0],
                                                              gp_size=[2, 1], gp_adds=[2, 1])
+
+
+def test_step_6_at_its_boundaries_sigma2_equal_to_the_tolerance_and_a_gap_of_exactly_2_eps1():
+    """Noise 1 and k(x, x) = 1 make the algebra exact: one point leaves sigma2^2 = 1 - 1/2 = 0.5 and a
+    residual of -4 (r = 1: q = 1 + 0.5 x 10 = 6 against Q̂ = 10) a mean of -2. Algorithm 1 overwrites
+    when sigma2^2 <= sigma_tol2 (so at 0.5) and Q̂ - mean > 2 eps1 strictly (so not at eps1 = 1)."""
+    out = step(agent_1d(noise_var=1.0, sigma_tol2=0.5, eps1=0.01), 0.5, 0, 1.0, 0.6)
+    assert (out["var2"].item(), out["mean2"].item()) == (0.5, -2.0) and out["update"].item()
+    assert not step(agent_1d(noise_var=1.0, sigma_tol2=0.5, eps1=1.0), 0.5, 0, 1.0, 0.6)["update"].item()
+    assert step(agent_1d(noise_var=1.0, sigma_tol2=0.5, eps1=0.999), 0.5, 0, 1.0, 0.6)["update"].item()
+
+
+def test_a_step_with_no_seed_active_learns_nothing_and_says_so_per_seed():
+    """Every seed finished: learn and update False for each seed (bool, shape (S,)), the GPs, Q̂ and
+    the counters untouched."""
+    ag = agent_1d(seeds=(0, 1))
+    out = ag.learn(t([[0.5], [0.5]]), torch.tensor([0, 0]), t([1.0, 1.0]), t([[0.6], [0.6]]),
+                   torch.tensor([False, False]), active=torch.tensor([False, False]))
+    assert {k: (v.dtype, v.tolist()) for k, v in out.items()} == dict(learn=(torch.bool, [False, False]),
+                                                                      update=(torch.bool, [False, False]))
+    assert ag.gp.size.sum().item() == 0 and ag.qhat.size().tolist() == [0, 0]
+    assert ag.gp_adds.tolist() == [0, 0] and ag.qhat_updates.tolist() == [0, 0]
