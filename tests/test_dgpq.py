@@ -228,6 +228,10 @@ def test_section5_reproduces_the_report_values():
     cfg = config(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0, lipschitz=9.0,
                  covering="unit-square").resolve(4)
     assert math.isclose(cfg.sigma_tol2, tol) and math.isclose(cfg.eps1, eps1)
+    # an agent built from such a config derives them for its own actions (4 here: the values above)
+    ag = DGPQ(config(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0, lipschitz=9.0, gamma=0.01,
+                     covering="unit-square"), seeds=[0], state_dim=2, num_actions=4)
+    assert math.isclose(ag.cfg.sigma_tol2, tol) and math.isclose(ag.cfg.eps1, eps1)
 
 
 @pytest.mark.parametrize("bad,match", [(dict(gamma=1.5), "gamma"), (dict(noise_var=-0.1), "noise_var"),
@@ -373,7 +377,7 @@ def test_step_6_at_its_boundaries_sigma2_equal_to_the_tolerance_and_a_gap_of_exa
     residual of -4 (r = 1: q = 1 + 0.5 x 10 = 6 against Q̂ = 10) a mean of -2. Algorithm 1 overwrites
     when sigma2^2 <= sigma_tol2 (so at 0.5) and Q̂ - mean > 2 eps1 strictly (so not at eps1 = 1)."""
     out = step(agent_1d(noise_var=1.0, sigma_tol2=0.5, eps1=0.01), 0.5, 0, 1.0, 0.6)
-    assert (out["var2"].item(), out["mean2"].item()) == (0.5, -2.0) and out["update"].item()
+    assert (out["var1"].item(), out["var2"].item(), out["mean2"].item()) == (1.0, 0.5, -2.0) and out["update"].item()
     assert not step(agent_1d(noise_var=1.0, sigma_tol2=0.5, eps1=1.0), 0.5, 0, 1.0, 0.6)["update"].item()
     assert step(agent_1d(noise_var=1.0, sigma_tol2=0.5, eps1=0.999), 0.5, 0, 1.0, 0.6)["update"].item()
 
@@ -388,3 +392,18 @@ def test_a_step_with_no_seed_active_learns_nothing_and_says_so_per_seed():
                                                                       update=(torch.bool, [False, False]))
     assert ag.gp.size.sum().item() == 0 and ag.qhat.size().tolist() == [0, 0]
     assert ag.gp_adds.tolist() == [0, 0] and ag.qhat_updates.tolist() == [0, 0]
+
+
+def test_q_hat_is_evaluated_once_per_step(monkeypatch):
+    """Q̂(s_{t+1}) of step 3 is Q̂(s_t) of the next step's action and of its step 6 (memoised on the state
+    tensor and Q̂'s version, and kept current by an overwrite): over three steps with overwrites, one
+    evaluation each, plus the first state's."""
+    calls = []
+    evaluate = LipschitzQ.__call__
+    monkeypatch.setattr(LipschitzQ, "__call__", lambda self, s: calls.append(1) or evaluate(self, s))
+    ag = agent_1d()
+    states = [t([[x]]) for x in (0.5, 0.6, 0.7, 0.8)]
+    for k in range(3):
+        a = ag.select_action(states[k])
+        ag.learn(states[k], a, t([1.0]), states[k + 1], torch.tensor([False]))
+    assert ag.qhat_updates.item() >= 1 and len(calls) == 1 + 3
