@@ -251,6 +251,9 @@ def test_section5_covering_from_the_env_state_box():
     assert box_covering([0, 0, 0], [1, 2, 1], "l2")(math.sqrt(3) / 2) == 2  # cubes of side 1
     cfg = config(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0, lipschitz=9.0)
     assert cfg.resolve(4, state_box=([0.0, 0.0], [1.0, 1.0])).sigma_tol2 == pytest.approx(2.6821087e-4, rel=1e-6)
+    ag = DGPQ(config(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0, lipschitz=9.0), seeds=[0],
+              state_dim=2, num_actions=4, state_box=([0.0, 0.0], [1.0, 1.0]))     # an agent built with the box
+    assert ag.cfg.sigma_tol2 == pytest.approx(2.6821087e-4, rel=1e-6)
     with pytest.raises(ValueError, match="state box"):
         config(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0).resolve(4)
 
@@ -407,3 +410,15 @@ def test_q_hat_is_evaluated_once_per_step(monkeypatch):
         a = ag.select_action(states[k])
         ag.learn(states[k], a, t([1.0]), states[k + 1], torch.tensor([False]))
     assert ag.qhat_updates.item() >= 1 and len(calls) == 1 + 3
+
+
+def test_the_agent_uses_the_metric_and_the_kernel_it_is_given():
+    """Q̂ measures distance in the config's metric (L-inf: a pair at (0, 0) bounds (0.3, 0.4) by
+    mu + L max(0.3, 0.4) = 1.4, where L1 says 1.7); a kernel passed in is the GPs' own."""
+    from trl_dgpq.gp import RBFKernel
+    for metric, bound in (("linf", 1.4), ("l1", 1.7)):
+        ag = DGPQ(config(metric=metric, v_max=10.0), seeds=[0], state_dim=2, num_actions=1)
+        ag.qhat.insert(t([[0.0, 0.0]]), torch.tensor([0]), t([1.0]), torch.tensor([True]))
+        assert ag.qhat_values(t([[0.3, 0.4]]))[0, 0].item() == pytest.approx(bound)
+    kernel = RBFKernel(0.7, 2.0)
+    assert DGPQ(config(), seeds=[0], state_dim=2, num_actions=1, kernel=kernel).gp.kernel is kernel
