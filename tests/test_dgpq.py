@@ -334,6 +334,7 @@ def test_the_kernel_is_trained_with_its_settings_once_a_gp_holds_enough_new_poin
     assert due.tolist() == [[False, True], [False, False]]
     assert kw == dict(steps=7, lr=0.003, min_points=2)
     assert ag.kernel_fits.tolist() == [1, 0] and ag.since_fit.tolist() == [[0, 0], [1, 1]]
+    assert ag.kernel_fits.dtype == ag.since_fit.dtype == torch.long   # counts: 1, not 1.0, in episodes.csv
 
 
 def test_observe_learns_from_the_reward_shaped_by_the_envs_potential_at_its_own_gamma():
