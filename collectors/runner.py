@@ -51,6 +51,7 @@ LOCK = "run.lock"  # held (an OS lock) by the one process writing the run; holds
 PREVIOUS = "checkpoint.prev.pt"  # the checkpoint before the latest: where a damaged latest falls back to
 EXTEND = "checkpoint.extend.pt"  # the first step at which seeds stopped: where a lengthened run goes on from
 RUN_FILES = (CONFIG, EPISODES, STATUS, CHECKPOINT, PREVIOUS, EXTEND)
+FALLBACKS = (PREVIOUS, EXTEND)   # read in this order when the latest checkpoint cannot be
 LENGTHS = ("episodes", "env_steps")  # the settings a run can be lengthened in
 # 2: GP state in the kernel-batch layout (gp/kernels.py) with its likelihood module; format 1
 # checkpoints are refused rather than loaded into renamed or reshaped fields
@@ -377,7 +378,7 @@ class RunFolder:
         can be read."""
         latest = self.file(CHECKPOINT)
         # a finished run has dropped checkpoint.prev.pt; where seeds stopped is an earlier state too
-        earlier = [p for p in (self.file(PREVIOUS), self.file(EXTEND)) if p.exists()]
+        earlier = [p for p in map(self.file, FALLBACKS) if p.exists()]
         if not latest.exists() and not earlier:
             return None
         try:
@@ -400,7 +401,7 @@ class RunFolder:
         """{seed: episodes} that a resume keeps (those of the checkpoint ``load_checkpoint`` would
         read; the rows after them run again); None if no checkpoint can be read. Memory-mapped: a
         glance at a checkpoint of hundreds of MB costs milliseconds."""
-        for name in (CHECKPOINT, PREVIOUS, EXTEND):
+        for name in (CHECKPOINT, *FALLBACKS):
             try:
                 state = torch.load(self.file(name), mmap=True, weights_only=True)
                 return dict(zip(seeds, state["collector"]["episode"].tolist()))

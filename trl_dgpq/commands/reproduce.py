@@ -389,10 +389,9 @@ def estimate(planned: dict, publication: Path) -> list:
                 measured[name] = {**sections, "_same": same_config(sections)}
 
     @cache
-    def rows_of(name: str):   # the rows of the experiments chosen (or tied), each read once: their time in
-        df = published.load(publication, name).df   # CPU where recorded (the wall time grows with the load)
-        spent = df["cpu_s"].fillna(df["wall_s"]) if "cpu_s" in df else df["wall_s"]
-        return df[["episode", "steps"]].assign(wall_s=spent)
+    def rows_of(name: str):   # the rows of the experiments chosen (or tied), each read once
+        df = published.load(publication, name).df
+        return df[["episode", "steps"]].assign(spent=spent_seconds(df))
     out = []
     for name, config in planned.items():
         source, how = like(config, measured, rows_of)
@@ -402,15 +401,21 @@ def estimate(planned: dict, publication: Path) -> list:
         rows, run = rows_of(source), config["run"]
         if run.get("env_steps"):       # a budget, or its episodes at the published run's steps per episode
             steps = min(run["env_steps"], run["episodes"] * float(rows["steps"].mean()))
-            seconds = len(run["seeds"]) * steps * float(rows["wall_s"].sum() / rows["steps"].sum())
+            seconds = len(run["seeds"]) * steps * float(rows["spent"].sum() / rows["steps"].sum())
         else:                          # its episodes at the time per seed-episode over as many episodes there
             ran = int(rows.episode.max())
-            per = float(rows[rows.episode <= run["episodes"]]["wall_s"].mean())
+            per = float(rows[rows.episode <= run["episodes"]]["spent"].mean())
             # a plan longer than the published run: its later episodes at the rate of its last 10 %
-            tail = float(rows[rows.episode > 0.9 * ran]["wall_s"].mean())
+            tail = float(rows[rows.episode > 0.9 * ran]["spent"].mean())
             seconds = len(run["seeds"]) * (per * min(run["episodes"], ran) + tail * max(0, run["episodes"] - ran))
         out.append((name, JOB_START_S + seconds, how))
     return out
+
+
+def spent_seconds(df):
+    """Each row's seconds of one core: its CPU time where recorded, else its wall time (which grows
+    with whatever else shares the cores; rows from before ``cpu_s`` have only it)."""
+    return df["cpu_s"].fillna(df["wall_s"]) if "cpu_s" in df else df["wall_s"]
 
 
 def job_share(seconds: float, seeds: int, of: int) -> float:
@@ -506,7 +511,7 @@ def seconds_left(folder: str, run: dict) -> Optional[float]:
     if covered is None:
         return None
     df = df[df["episode"] <= df["seed"].map(covered)].copy()
-    df["spent"] = df["cpu_s"].fillna(df["wall_s"]) if "cpu_s" in df else df["wall_s"]
+    df["spent"] = spent_seconds(df)
     per = df.groupby("episode").agg(seeds=("seed", "nunique"), steps=("steps", "max"), spent=("spent", "sum"))
     per = per[per.seeds == len(run["seeds"])]
     if per.empty:
