@@ -414,7 +414,6 @@ def main(argv=None):
     g.add_argument("--budget", type=int, default=100)
     g.add_argument("--max-gb", type=float, default=8.0, help="skip exact cases needing more memory")
     g.add_argument("--out", default=None)
-    g.add_argument("--threads", type=int, default=1, help="torch intra-op threads (1: as every run uses by default)")
     g.set_defaults(fn=bench_gp)
     d = sub.add_parser("dgpq", help="DGPQ loop cost per seed-step, early and late")
     d.add_argument("--steps", type=int, default=20000, help="late window starts here (0: early only)")
@@ -426,7 +425,6 @@ def main(argv=None):
     d.add_argument("--quick", action="store_true", help="under 2 minutes: late window at step 2,000, 2 repeats, "
                                                         "sparse GP only")
     d.add_argument("--out", default=None)
-    d.add_argument("--threads", type=int, default=1, help="torch intra-op threads (1: as every run uses by default)")
     d.set_defaults(fn=bench_dgpq)
     k = sub.add_parser("kernel", help="manifold vs RBF GP regression, held-out RMSE and NLL")
     k.add_argument("--seeds", type=int, default=5)
@@ -445,8 +443,10 @@ def main(argv=None):
     q.add_argument("--widths", nargs="+", type=int, default=[100, 200, 1000, 2000, 4000])
     q.add_argument("--repeats", type=int, default=5)
     q.add_argument("--out", default=None)
-    q.add_argument("--threads", type=int, default=1, help="torch intra-op threads (1: as every run uses by default)")
     q.set_defaults(fn=bench_qhat)
+    for in_process in (g, d, q):   # timed in this process (the others set their own threads)
+        in_process.add_argument("--threads", type=int, default=1,
+                                help="torch intra-op threads (1: as every run uses by default)")
     m = sub.add_parser("imports", help="import time of the core; simulators imported; push worlds per run")
     m.add_argument("--repeats", type=int, default=7)
     m.add_argument("--checkout", default=None, help="another checkout to time (default: this one)")
@@ -494,7 +494,7 @@ def main(argv=None):
         args.seed_counts = dict(dgpq=[1, 64], dqn=[1, 10], ddpg=[1, 4])
     if args.what == "dgpq" and args.quick:
         args.steps, args.repeats, args.backends = min(args.steps, 2000), min(args.repeats, 2), ["sparse"]
-    if args.what in ("gp", "dgpq", "qhat"):   # run in this process: as a run would (the others set theirs)
+    if args.what in ("gp", "dgpq", "qhat"):   # run in this process: as a run would
         torch.set_num_threads(args.threads)
     args.fn(args)
 

@@ -67,7 +67,7 @@ def summary(total: float, points: list, verdicts: list, jobs: list) -> list:
         return [f"wall {total / 60:.1f} min; no progress line (no job ran)"]
     sweep_s = points[-1][0]
     estimate, cpu = sum(j["estimate_s"] for j in jobs), sum(j["cpu_in_episodes_s"] for j in jobs)
-    steps = sum(j.get("steps_estimate_s", j["estimate_s"]) for j in jobs)
+    steps = sum(j["steps_estimate_s"] for j in jobs)
     ratio = f" (x{cpu / estimate:.2f}" if estimate > 0 else " (no estimate"
     ratio += f"; x{cpu / steps:.2f} its steps alone, {steps / 60:.2f}" if steps > 0 else ""
     return [f"reproduce --scale quick, {len(jobs)} jobs",

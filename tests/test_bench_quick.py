@@ -31,7 +31,7 @@ def test_the_summary_says_so_where_no_job_ran_or_none_has_an_estimate():
     """No progress line (the run failed before a job ended): one line, not a crash on the empty list;
     jobs with no estimate: the ratio is left out rather than divided by zero."""
     assert bench_quick.summary(90.0, [], [], []) == ["wall 1.5 min; no progress line (no job ran)"]
-    lines = bench_quick.summary(120.0, [(60.0, None)], [], [dict(estimate_s=0.0, cpu_in_episodes_s=30.0)])
+    lines = bench_quick.summary(120.0, [(60.0, None)], [], [dict(estimate_s=0.0, steps_estimate_s=0.0, cpu_in_episodes_s=30.0)])
     assert lines[1] == "wall 2.0 min: the sweep 1.0, the report after it 1.0"
     assert lines[2] == "time-left guide within 25 % (or 6 s) of the truth at 0 of its 0 reports"
     assert lines[3] == ("CPU time in the episodes 0.50 min of one core against the estimate's 0.00 (no estimate; "
