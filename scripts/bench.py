@@ -478,8 +478,12 @@ def main(argv=None):
     bd.set_defaults(fn=lambda a: _neural().bench_bound(a))
     qk = sub.add_parser("quick", help="reproduce --scale quick: wall time, the time-left guide, the estimate")
     qk.add_argument("--workers", type=int, default=2)
-    qk.add_argument("--out-dir", default=None, help="the reproduction's folder (default: a new one under runs/)")
+    qk.add_argument("--out-dir", default=None, help="the reproduction's folder (default: a new one under runs/); "
+                    "with --replay, the earlier run's, where its record's command does not name it")
     qk.add_argument("--out", default=None)
+    qk.add_argument("--replay", default=None, metavar="FILE",
+                    help="run nothing: replay the guide of an earlier run (this benchmark's JSON) with the estimate "
+                         "the checkout makes now")
     qk.set_defaults(fn=lambda a: _quick().bench_quick(a))
     sp = sub.add_parser("step-parts", help="a learning step of DDPG and DQN: the update and the work around it")
     sp.add_argument("--threads", type=int, default=1)

@@ -12,6 +12,12 @@ output with the time it arrived. Then, from that output and the folder alone:
   to each job: a job's start is not in its rows.
 The load average at the start and the end says how quiet the machine was. Raw lines, per-job
 figures and loads go to the JSON.
+
+``bench.py quick --replay FILE`` runs nothing: it replays an earlier run's guide (FILE, this
+benchmark's JSON; the run's folder named in it) with the estimate the checkout makes now, e.g.
+after a new publication. Each job starts when a worker frees, in the order the run gave them (by
+the estimates it recorded), and ends when its line says; at each progress line the guide
+(``sweep.seconds_left``) is asked again with the new costs, and judged as above.
 """
 from __future__ import annotations
 
@@ -22,6 +28,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Optional
 
 ROOT = Path(__file__).resolve().parent.parent
 GUESS = re.compile(r"~([\d.]+) (min|h) left")
@@ -43,6 +50,54 @@ def judged(points: list, tolerance: float = 0.25, resolution: float = 6.0) -> li
     return [dict(at_s=round(t, 1), guess_s=g, truth_s=round(end - t, 1),
                  within=abs(g - (end - t)) <= max(tolerance * (end - t), resolution))
             for t, g in points[:-1] if g is not None]
+
+
+def ended(stamped: list) -> list:
+    """[(seconds since start, job name)] of each progress line: the job whose end it reports."""
+    return [(t, line.split("] ", 1)[1].rsplit(": ", 1)[0]) for t, line in stamped if "jobs done" in line]
+
+
+def replay(stamped: list, jobs: list, recorded: dict, workers: int, cost) -> list:
+    """[(seconds since start, guessed seconds left)] at each progress line of a recorded run (its
+    ``stamped`` lines; its ``jobs``, sweep.Job in plan order; ``recorded``: job name -> the estimate
+    it ran with), the guide asked with ``cost`` instead. The first ``workers`` jobs start at the
+    run's first line, each next one when a job ends (the pool refills after the line is printed)."""
+    from trl_dgpq.collectors import sweep
+    order = sorted(jobs, key=lambda j: -recorded[j.name])   # as reproduce.in_order did, stable
+    t0 = stamped[0][0] if stamped else 0.0
+    started = {j.name: t0 for j in order[:workers]}
+    queue, took, out = order[workers:], [], []
+    by_name = {j.name: j for j in jobs}
+    for t, name in ended(stamped):
+        took.append((by_name[name], t - started[name]))
+        done = {j.name for j, _ in took}
+        running = [(by_name[n], t - s) for n, s in started.items() if n not in done]
+        out.append((t, sweep.seconds_left(took, running, queue, workers, cost) if queue or running else None))
+        if queue:
+            started[queue.pop(0).name] = t
+    return out
+
+
+def replayed(path: Path, out: Optional[Path] = None) -> list:
+    """The lines ``bench.py quick --replay`` prints: the recorded guide's hits and the replayed one's
+    (``out``: the run's folder, where it is not where the record's command says)."""
+    from trl_dgpq.collectors import sweep
+    from trl_dgpq.commands import reproduce
+    record = json.loads(Path(path).read_text())
+    command = record["meta"]["command"].split()
+    out, workers = Path(out or command[command.index("--out") + 1]), int(record["meta"]["workers"])
+    planned, jobs = sweep.load(out)
+    recorded = {j["job"]: j["estimate_s"] for j in record["jobs"]}
+    cost = reproduce.job_cost(planned, reproduce.estimate(planned, reproduce.PUBLICATION))
+    stamped = [tuple(x) for x in record["lines"]]
+    then = sum(v["within"] for v in record["guides"])
+    now = judged(replay(stamped, jobs, recorded, workers, cost))
+    total = sum(cost(j) for j in jobs)
+    return [f"{path}: {len(jobs)} jobs on {workers} workers, recorded {record['meta']['date']}",
+            f"time-left guide within 25 % (or 6 s) of the truth: as run, at {then} of {len(record['guides'])} "
+            f"reports; replayed with the estimate from {reproduce.PUBLICATION.name} now, at "
+            f"{sum(v['within'] for v in now)} of {len(now)}",
+            f"the estimate: {sum(recorded.values()) / 60:.2f} min of one core as run, {total / 60:.2f} now"]
 
 
 def per_job(out: Path) -> list:
@@ -79,12 +134,16 @@ def summary(total: float, points: list, verdicts: list, jobs: list) -> list:
 
 
 def bench_quick(args) -> None:
+    if args.replay:
+        for line in replayed(Path(args.replay), args.out_dir):
+            print(line)
+        return
     out = Path(args.out_dir or f"runs/bench-quick-{time.strftime('%Y%m%d-%H%M%S')}")
     if out.exists():
         raise SystemExit(f"bench.py quick: {out} exists: it times a fresh run")
     load_start = os.getloadavg()
     command = [sys.executable, str(ROOT / "scripts" / "reproduce.py"), "--scale", "quick", "--workers",
-               str(args.workers), "--out", str(out)]
+               str(args.workers), "--out", str(out.resolve())]   # absolute: --replay finds it from anywhere
     t0 = time.perf_counter()
     stamped = []
     with subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1) as proc:

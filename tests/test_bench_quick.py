@@ -41,3 +41,28 @@ def test_the_summary_says_so_where_no_job_ran_or_none_has_an_estimate():
                               dict(estimate_s=20.0, steps_estimate_s=3.0, cpu_in_episodes_s=33.0)])
     assert ok[2].endswith("at 1 of its 2 reports")
     assert "1.05 min of one core against the estimate's 1.00 (x1.05; x1.50 its steps alone, 0.70;" in ok[3]
+
+
+def test_a_replay_starts_each_job_when_a_worker_frees_and_asks_the_guide_with_the_new_costs():
+    """Three jobs on 2 workers, the run's estimates a 10, c 6, b 5 (so a and c start at 0 s, b when
+    c ends at 6 s); a ends at 12 s, b at 14 s. With the same costs, by hand (sweep.seconds_left):
+    at 6 s, rate 6/6 = 1, a has max(10 - 6, 0.25 * 6) = 4 s left, b 5 on the free worker: 5;
+    at 12 s, rate (6 + 12) / 16, b has run 6 s of 5 * 18/16 = 5.625: the floor 0.25 * 6 = 1.5;
+    at 14 s nothing is left to guess. With every cost 1 the rate is 6 s a unit: at 6 s a has
+    max(6 - 6, 1.5) = 1.5 left and b 6 ahead: 6."""
+    from trl_dgpq.collectors.sweep import Job
+    jobs = [Job(x, 0, [0], "", {}) for x in "abc"]
+    name = {j.experiment: j.name for j in jobs}
+    recorded = {name["a"]: 10.0, name["b"]: 5.0, name["c"]: 6.0}
+    stamped = [(0.0, "reproduce (quick) -> x: 3 experiments, 2 workers"),
+               (6.0, f"[1/3 jobs done, 0 not finished, 2 to go (2 running); 0.1 min] {name['c']}: finished"),
+               (12.0, f"[2/3 jobs done, 0 not finished, 1 to go (1 running); 0.2 min] {name['a']}: finished"),
+               (14.0, f"[3/3 jobs done, 0 not finished, 0 to go; 0.2 min] {name['b']}: finished"),
+               (20.0, "wrote x/REPORT.md")]
+    assert bench_quick.ended(stamped) == [(6.0, name["c"]), (12.0, name["a"]), (14.0, name["b"])]
+    by_cost = bench_quick.replay(stamped, jobs, recorded, 2, lambda j: recorded[j.name])
+    assert by_cost == [(6.0, 5.0), (12.0, 1.5), (14.0, None)]
+    assert bench_quick.replay(stamped, jobs, recorded, 2, lambda j: 1.0)[0] == (6.0, 6.0)
+    # one worker: a alone first, then c, then b; at a's end (6 s here) c and b are still to come
+    one = [stamped[0], (6.0, stamped[2][1]), (12.0, stamped[1][1]), (14.0, stamped[3][1])]
+    assert bench_quick.replay(one, jobs, recorded, 1, lambda j: recorded[j.name])[0] == (6.0, 6.6)
