@@ -484,6 +484,8 @@ def main(argv=None):
     qk.add_argument("--replay", default=None, metavar="FILE",
                     help="run nothing: replay the guide of an earlier run (this benchmark's JSON) with the estimate "
                          "the checkout makes now")
+    qk.add_argument("--publication", default=None, metavar="DIR",
+                    help="with --replay: estimate from this publication (default: the committed results/report)")
     qk.set_defaults(fn=lambda a: _quick().bench_quick(a))
     sp = sub.add_parser("step-parts", help="a learning step of DDPG and DQN: the update and the work around it")
     sp.add_argument("--threads", type=int, default=1)

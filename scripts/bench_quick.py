@@ -78,9 +78,10 @@ def replay(stamped: list, jobs: list, recorded: dict, workers: int, cost) -> lis
     return out
 
 
-def replayed(path: Path, out: Optional[Path] = None) -> list:
+def replayed(path: Path, out: Optional[Path] = None, publication: Optional[Path] = None) -> list:
     """The lines ``bench.py quick --replay`` prints: the recorded guide's hits and the replayed one's
-    (``out``: the run's folder, where it is not where the record's command says)."""
+    (``out``: the run's folder, where it is not where the record's command says; ``publication``:
+    the published data to estimate from, where not the committed one, e.g. one about to be)."""
     from trl_dgpq.collectors import sweep
     from trl_dgpq.commands import reproduce
     record = json.loads(Path(path).read_text())
@@ -88,14 +89,15 @@ def replayed(path: Path, out: Optional[Path] = None) -> list:
     out, workers = Path(out or command[command.index("--out") + 1]), int(record["meta"]["workers"])
     planned, jobs = sweep.load(out)
     recorded = {j["job"]: j["estimate_s"] for j in record["jobs"]}
-    cost = reproduce.job_cost(planned, reproduce.estimate(planned, reproduce.PUBLICATION))
+    publication = Path(publication or reproduce.PUBLICATION)
+    cost = reproduce.job_cost(planned, reproduce.estimate(planned, publication))
     stamped = [tuple(x) for x in record["lines"]]
     then = sum(v["within"] for v in record["guides"])
     now = judged(replay(stamped, jobs, recorded, workers, cost))
     total = sum(cost(j) for j in jobs)
     return [f"{path}: {len(jobs)} jobs on {workers} workers, recorded {record['meta']['date']}",
             f"time-left guide within 25 % (or 6 s) of the truth: as run, at {then} of {len(record['guides'])} "
-            f"reports; replayed with the estimate from {reproduce.PUBLICATION.name} now, at "
+            f"reports; replayed with the estimate from {publication} now, at "
             f"{sum(v['within'] for v in now)} of {len(now)}",
             f"the estimate: {sum(recorded.values()) / 60:.2f} min of one core as run, {total / 60:.2f} now"]
 
@@ -135,7 +137,7 @@ def summary(total: float, points: list, verdicts: list, jobs: list) -> list:
 
 def bench_quick(args) -> None:
     if args.replay:
-        for line in replayed(Path(args.replay), args.out_dir):
+        for line in replayed(Path(args.replay), args.out_dir, args.publication):
             print(line)
         return
     out = Path(args.out_dir or f"runs/bench-quick-{time.strftime('%Y%m%d-%H%M%S')}")
