@@ -665,6 +665,28 @@ def test_a_validated_study_writes_the_best_trial_on_the_validation_seeds(tmp_pat
     assert entry["provenance"]["validation"] == {"seeds": [1005, 1006], "value": 30.0, "trials": [0, 1]}
 
 
+def test_a_finished_study_asked_again_keeps_its_preset_as_first_written(tmp_path, monkeypatch):
+    """Writing the same preset again (a finished study's command run once more) leaves the entry as it
+    was, its date and commit those of the first writing, not of the later checkout; a new best
+    trial rewrites it, with a new date. The date and commit are stubbed so the two differ."""
+    from trl_dgpq.collectors import runner
+    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+    commits = iter(["a" * 40, "b" * 40, "c" * 40])
+    monkeypatch.setattr(runner, "provenance", lambda: {"git": {"commit": next(commits)}})
+    study = Study.open(tmp_path / "study", None, {"env": "square", "agent": "dqn", "episodes": "4"}, {})
+    study.load().add_trial(optuna.trial.create_trial(value=10.0, user_attrs={"settings": {"lr": 0.0002}}))
+    entry = lambda: json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]["tuned"]  # noqa: E731
+    assert study.write_preset() == ("tuned", tmp_path / "tuned.json")
+    first = entry()
+    assert first["provenance"]["commit"] == "a" * 40
+    assert study.write_preset() == ("tuned", tmp_path / "tuned.json")
+    assert entry() == first                                                   # kept whole: commit a
+    study.load().add_trial(optuna.trial.create_trial(value=5.0, user_attrs={"settings": {"lr": 0.001}}))
+    study.write_preset()
+    assert entry()["preset"]["agent"]["lr"] == 0.001 and entry()["provenance"]["commit"] == "b" * 40
+    assert entry()["provenance"]["trial"] == first["provenance"]["trial"] + 1
+
+
 def test_a_study_never_replaces_another_studys_preset_unless_forced(tmp_path, monkeypatch, capsys):
     """A 1-trial study writing 'tuned' over a preset another study wrote is refused, naming what it
     would replace; --force replaces it and says what went; the same study may rewrite its own."""

@@ -2,6 +2,7 @@
 provenance (refusing to replace another study's preset unless forced)."""
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import Optional, Tuple
@@ -67,16 +68,32 @@ class Preset:
         given = split_overrides(self.given_agent_env(), *classes(run))
         sections = {s: {**base[s], **{k: self.value_of(s, k) for k in given[s]}} for s in ("env", "agent")}
         sections["agent"].update(best.user_attrs["settings"])
-        return name, write_tuned(run["env"], run["agent"], name, sections, dict(
+        record = dict(
             study=portable(self.url), study_name=self.name, trial=best.number, trials=sum(map(len, ended.values())),
             objective=self.objective.name, window=self.tune.window, direction=self.objective.direction,
             value=best.value,
             base_preset=run["preset"], budget=dict(episodes=run["episodes"], env_steps=run["env_steps"]),
-            seeds=run["seeds"], date=time.strftime("%Y-%m-%d %H:%M:%S"), commit=provenance()["git"]["commit"],
+            seeds=run["seeds"],
             **({"search": list(self.tune.search)} if self.tune.search else {}),
             **({"validation": dict(seeds=study.user_attrs["validation"]["seeds"], value=validated,
                                    trials=sorted(map(int, study.user_attrs["validation"]["values"])))}
-               if validated is not None else {})))
+               if validated is not None else {}))
+        if self.unchanged(name, sections, record):   # its date and commit: when the study first wrote it
+            from trl_dgpq import presets
+            return name, presets.tuned_file(run["env"])
+        return name, write_tuned(run["env"], run["agent"], name, sections, dict(
+            record, date=time.strftime("%Y-%m-%d %H:%M:%S"), commit=provenance()["git"]["commit"]))
+
+    def unchanged(self, name: str, sections: dict, record: dict) -> bool:
+        """Whether preset ``name`` holds ``sections`` and ``record`` already (as JSON reads them back),
+        its date and commit apart: a finished study asked again writes the same preset, and
+        rewriting it would stamp it with a later commit than the one its trials ran at."""
+        from trl_dgpq.presets import tuned_entries
+        run = self.config["run"]
+        old = (tuned_entries(run["env"]).get(run["agent"]) or {}).get(name) or {}
+        kept = {k: v for k, v in (old.get("provenance") or {}).items() if k not in ("date", "commit")}
+        same = lambda a, b: json.loads(json.dumps(a, sort_keys=True)) == json.loads(json.dumps(b, sort_keys=True))  # noqa: E731
+        return bool(old) and same(old.get("preset"), sections) and same(kept, record)
 
     def value_of(self, section: str, key: str):
         """A given setting's value as the study's config resolved it."""
