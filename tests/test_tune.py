@@ -678,13 +678,25 @@ def test_a_finished_study_asked_again_keeps_its_preset_as_first_written(tmp_path
     entry = lambda: json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]["tuned"]  # noqa: E731
     assert study.write_preset() == ("tuned", tmp_path / "tuned.json")
     first = entry()
-    assert first["provenance"]["commit"] == "a" * 40
+    prov = first["provenance"]
+    assert prov["commit"] == "a" * 40 and re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d", prov["date"])
+    assert prov["budget"] == {"episodes": 4, "env_steps": 0} and prov["study_name"] == "study"
+    assert prov["objective"] == study.objective.name and prov["value"] == 10.0 and "search" not in prov
     assert study.write_preset() == ("tuned", tmp_path / "tuned.json")
     assert entry() == first                                                   # kept whole: commit a
+    edited = json.loads((tmp_path / "tuned.json").read_text())                # a hand edit of its values
+    edited["square"]["dqn"]["tuned"]["preset"]["agent"]["lr"] = 0.5
+    (tmp_path / "tuned.json").write_text(json.dumps(edited))
+    study.write_preset()
+    assert entry()["preset"] == first["preset"] and entry()["provenance"]["commit"] == "b" * 40
     study.load().add_trial(optuna.trial.create_trial(value=5.0, user_attrs={"settings": {"lr": 0.001}}))
     study.write_preset()
-    assert entry()["preset"]["agent"]["lr"] == 0.001 and entry()["provenance"]["commit"] == "b" * 40
+    assert entry()["preset"]["agent"]["lr"] == 0.001 and entry()["provenance"]["commit"] == "c" * 40
     assert entry()["provenance"]["trial"] == first["provenance"]["trial"] + 1
+    other = Study.open(tmp_path / "other", None, {"env": "square", "agent": "dqn", "episodes": "4"}, {})
+    other.load().add_trial(optuna.trial.create_trial(value=1.0, user_attrs={"settings": {"lr": 0.01}}))
+    with pytest.raises(ValueError, match="this study would replace preset 'tuned'"):
+        other.write_preset()                                                  # not forced by default
 
 
 def test_a_study_never_replaces_another_studys_preset_unless_forced(tmp_path, monkeypatch, capsys):

@@ -92,7 +92,7 @@ class Preset:
         run = self.config["run"]
         old = (tuned_entries(run["env"]).get(run["agent"]) or {}).get(name) or {}
         kept = {k: v for k, v in (old.get("provenance") or {}).items() if k not in ("date", "commit")}
-        same = lambda a, b: json.loads(json.dumps(a, sort_keys=True)) == json.loads(json.dumps(b, sort_keys=True))  # noqa: E731
+        same = lambda a, b: json.loads(json.dumps(a)) == json.loads(json.dumps(b))  # noqa: E731
         return bool(old) and same(old.get("preset"), sections) and same(kept, record)
 
     def value_of(self, section: str, key: str):
