@@ -447,6 +447,7 @@ def main(argv=None):
     for in_process in (g, d, q):   # timed in this process (the others set their own threads)
         in_process.add_argument("--threads", type=int, default=1,
                                 help="torch intra-op threads (1: as every run uses by default)")
+        in_process.set_defaults(in_process=True)
     m = sub.add_parser("imports", help="import time of the core; simulators imported; push worlds per run")
     m.add_argument("--repeats", type=int, default=7)
     m.add_argument("--checkout", default=None, help="another checkout to time (default: this one)")
@@ -500,7 +501,7 @@ def main(argv=None):
         args.seed_counts = dict(dgpq=[1, 64], dqn=[1, 10], ddpg=[1, 4])
     if args.what == "dgpq" and args.quick:
         args.steps, args.repeats, args.backends = min(args.steps, 2000), min(args.repeats, 2), ["sparse"]
-    if args.what in ("gp", "dgpq", "qhat"):   # run in this process: as a run would
+    if getattr(args, "in_process", False):   # run in this process: as a run would
         torch.set_num_threads(args.threads)
     args.fn(args)
 

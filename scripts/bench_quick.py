@@ -68,10 +68,9 @@ def replay(stamped: list, jobs: list, recorded: dict, workers: int, cost) -> lis
     started = {j.name: t0 for j in order[:workers]}
     queue, took, out = order[workers:], [], []
     by_name = {j.name: j for j in jobs}
-    for t, name in ended(stamped):
-        took.append((by_name[name], t - started[name]))
-        done = {j.name for j, _ in took}
-        running = [(by_name[n], t - s) for n, s in started.items() if n not in done]
+    for t, name in ended(stamped):      # ``started``: the jobs running, each since when
+        took.append((by_name[name], t - started.pop(name)))
+        running = [(by_name[n], t - s) for n, s in started.items()]
         out.append((t, sweep.seconds_left(took, running, queue, workers, cost) if queue or running else None))
         if queue:
             started[queue.pop(0).name] = t

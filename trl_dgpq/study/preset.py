@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 from typing import Optional, Tuple
 
+from trl_dgpq import presets
 from trl_dgpq.collectors.experiment import classes, split_overrides
 from trl_dgpq.config import find_leaf
 from trl_dgpq.presets import check_preset_name, preset_overrides, tuned_name, write_tuned
@@ -33,12 +34,17 @@ class Preset:
         return (f"best: trial {best.number}, {self.objective.name} {best.value:.6g} ({better} is better, IQM over "
                 f"{len(seeds)} seeds) with {shown(best.user_attrs['settings'])}; {tally}")
 
+    def written(self, name: str) -> Optional[dict]:
+        """Preset ``name`` of this study's env and agent as tuned.json holds it ({"preset",
+        "provenance"}); None if there is none."""
+        run = self.config["run"]
+        return (presets.tuned_entries(run["env"]).get(run["agent"]) or {}).get(name)
+
     def replaces(self, name: str) -> Optional[str]:
         """What writing preset ``name`` would replace, in words, if another study wrote it (None: no
         preset of that name, or one this study wrote)."""
-        from trl_dgpq.presets import tuned_entries
         run = self.config["run"]
-        old = (tuned_entries(run["env"]).get(run["agent"]) or {}).get(name)
+        old = self.written(name)
         prov = (old or {}).get("provenance") or {}
         if old is None or prov.get("study_name") == self.name:
             return None
@@ -79,7 +85,6 @@ class Preset:
                                    trials=sorted(map(int, study.user_attrs["validation"]["values"])))}
                if validated is not None else {}))
         if self.unchanged(name, sections, record):   # its date and commit: when the study first wrote it
-            from trl_dgpq import presets
             return name, presets.tuned_file(run["env"])
         return name, write_tuned(run["env"], run["agent"], name, sections, dict(
             record, date=time.strftime("%Y-%m-%d %H:%M:%S"), commit=provenance()["git"]["commit"]))
@@ -88,9 +93,7 @@ class Preset:
         """Whether preset ``name`` holds ``sections`` and ``record`` already (as JSON reads them back),
         its date and commit apart: a finished study asked again writes the same preset, and
         rewriting it would stamp it with a later commit than the one its trials ran at."""
-        from trl_dgpq.presets import tuned_entries
-        run = self.config["run"]
-        old = (tuned_entries(run["env"]).get(run["agent"]) or {}).get(name) or {}
+        old = self.written(name) or {}
         kept = {k: v for k, v in (old.get("provenance") or {}).items() if k not in ("date", "commit")}
         same = lambda a, b: json.loads(json.dumps(a)) == json.loads(json.dumps(b))  # noqa: E731
         return bool(old) and same(old.get("preset"), sections) and same(kept, record)
