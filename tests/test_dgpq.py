@@ -423,3 +423,128 @@ def test_the_agent_uses_the_metric_and_the_kernel_it_is_given():
         assert ag.qhat_values(t([[0.3, 0.4]]))[0, 0].item() == pytest.approx(bound)
     kernel = RBFKernel(0.7, 2.0)
     assert DGPQ(config(), seeds=[0], state_dim=2, num_actions=1, kernel=kernel).gp.kernel is kernel
+
+
+# ---------------------------------------------------------------- devices, dtypes and small contracts
+def _tensors(x):
+    """Every tensor in a (nested) state dict."""
+    if isinstance(x, torch.Tensor):
+        yield x
+    elif isinstance(x, dict):
+        for v in x.values():
+            yield from _tensors(v)
+
+
+@pytest.mark.parametrize("gp, kernel", [("sparse", "rbf"), ("exact", "manifold")])
+def test_every_tensor_is_made_on_the_device_the_agent_is_given(gp, kernel):
+    """With torch's default device set to "meta" (no data), a tensor made without ``device=`` lands
+    there: an agent given device "cpu" must make its state, its scale, its actions and each step's
+    outputs on the CPU (a GPU run would otherwise mix devices). sigma_tol2 tiny: no overwrite, so the
+    GPs grow and the manifold kernel trains."""
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    from trl_dgpq.gp.factory import make_kernel
+    env, agent = build(resolve_config(seeds=[0, 1], state_scale=(0.5, 2.0), gp=gp, kernel=kernel,
+                                      sigma_tol2=1e-12, kernel_train_every=3, kernel_min_points=3,
+                                      kernel_train_steps=2))
+    A = env.info.num_actions()
+    gen = torch.Generator().manual_seed(0)
+    obs = [torch.rand(2, 2, generator=gen, dtype=torch.float32) for _ in range(13)]
+    kern = make_kernel(agent.cfg.gp, 2, [0, 1], A)        # made on the CPU; the GP moves it
+    with torch.device("meta"):
+        scale = DGPQ._scale(agent.cfg, env.info)
+        ag = DGPQ(agent.cfg, [0, 1], 2, A, kernel=kern, device="cpu",
+                  scale=scale)
+        outs = []
+        for s, s2 in zip(obs, obs[1:]):
+            a = ag.select_action(ag.features(s))
+            outs += [a, *ag.learn(ag.features(s), a, torch.ones(2, device="cpu"), ag.features(s2),
+                                  torch.zeros(2, dtype=torch.bool, device="cpu")).values()]
+        outs += list(ag.episode_stats().values())
+    assert ag.gp_adds.tolist() == [12, 12] and (kernel == "rbf" or ag.kernel_fits.min() > 0)
+    for x in [*scale, *outs, *_tensors(ag.state_dict()), *vars(ag).values()]:
+        if isinstance(x, torch.Tensor):
+            assert x.device.type == "cpu"
+
+
+def test_features_and_counters_keep_their_dtypes():
+    """Features are float64 whether scaled or not (a weight of 0.1 is float64's 0.1, not float32's);
+    the episode counters are integers."""
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    obs = torch.tensor([[0.3, 0.7]], dtype=torch.float32)
+    _, plain = build(resolve_config(seeds=[0]))
+    assert plain.features(obs).dtype == D and plain.features(obs).tolist() == obs.double().tolist()
+    _, scaled = build(resolve_config(seeds=[0], state_scale=(0.1, 3.0)))
+    f = scaled.features(obs)
+    assert f.dtype == D and f.tolist() == [[float(obs[0, 0]) * 0.1, float(obs[0, 1]) * 3.0]]
+    assert all(v.dtype == torch.long for v in scaled.episode_stats().values())
+
+
+def test_one_state_scale_weight_scales_every_dimension():
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    _, agent = build(resolve_config(seeds=[0], state_scale=(4.0,)))
+    assert agent.qhat.s.shape[-1] == 2
+    assert agent.features(torch.tensor([[0.25, 0.5]])).tolist() == [[1.0, 2.0]]
+
+
+def test_section5_covers_the_scaled_state_box():
+    """covering "env" with state_scale (0, 3) on the unit square: the box Section 5 covers is the
+    weighted, kept dimension only, [0, 3] -- one dimension, side 3."""
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    cfg = dict(seeds=[0], sigma_tol2=None, eps1=None, eps=1.0, delta=0.5, r_max=2.0)
+    env, agent = build(resolve_config(**cfg, state_scale=(0.0, 3.0)))
+    assert DGPQ._state_box(agent.cfg.__class__(**{**vars(agent.cfg), "sigma_tol2": None}), env.info) == ([0.0], [3.0])
+    _, two = build(resolve_config(**cfg, state_scale=(2.0, 0.5)))
+    assert DGPQ._state_box(two.cfg.__class__(**{**vars(two.cfg), "eps1": None}), env.info) == ([0.0, 0.0], [2.0, 0.5])
+    from trl_dgpq.bounds import box_covering
+    eps1, sigma_tol2 = section5(1.0, 0.5, agent.cfg.gamma, 2.0, agent.cfg.lipschitz, env.info.num_actions(),
+                                agent.cfg.gp.noise_var, box_covering([0.0], [3.0], agent.cfg.metric))
+    assert (agent.cfg.eps1, agent.cfg.sigma_tol2) == (eps1, sigma_tol2)
+
+
+@pytest.mark.parametrize("top", [1e6, -1e6, 0.5])
+def test_ties_are_within_a_relative_1e_12(top):
+    """Values within 1e-12 * max(|top|, 1) of the top tie (rounding of a sum is not a preference);
+    further apart they do not."""
+    tol = 1e-12 * max(abs(top), 1.0)
+    u = torch.tensor([[0.1, 0.9, 0.5]], dtype=D)
+    near = torch.tensor([[top, top - 0.5 * tol, top - 3 * tol]], dtype=D)
+    assert argmax_random_ties(near, u).tolist() == [1]          # the near one ties, and has the larger u
+    far = torch.tensor([[top, top - 1.5 * tol, top - 3 * tol]], dtype=D)
+    assert argmax_random_ties(far, u).tolist() == [0]
+
+
+def test_asking_for_section5_derives_what_is_not_given():
+    assert DGPQConfig.implied({"eps": 0.1}) == {"sigma_tol2": None, "eps1": None}
+    assert DGPQConfig.implied({"delta": 0.1, "eps1": 0.01}) == {"sigma_tol2": None}
+    assert DGPQConfig.implied({"lipschitz": 2.0}) == {}
+
+
+def test_section5_keeps_a_given_sigma_tol2_or_eps1():
+    """Section 5 fills in only what is none: a given sigma_tol2 (or eps1) stays as given."""
+    box = ([0.0, 0.0], [1.0, 1.0])
+    derived = config(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0).resolve(4, box)
+    kept = config(sigma_tol2=0.25, eps1=None, eps=1.0, delta=0.96, r_max=2.0).resolve(4, box)
+    assert (kept.sigma_tol2, kept.eps1) == (0.25, derived.eps1) and derived.sigma_tol2 != 0.25
+    kept = config(sigma_tol2=None, eps1=0.5, eps=1.0, delta=0.96, r_max=2.0).resolve(4, box)
+    assert (kept.sigma_tol2, kept.eps1) == (derived.sigma_tol2, 0.5)
+    with pytest.raises(ValueError, match=r"^give sigma_tol2 and eps1, or eps, delta and r_max to derive them \(Sec"):
+        config(sigma_tol2=None, eps1=None, eps=1.0).resolve(4, box)
+    with pytest.raises(ValueError, match="^Section 5 with covering 'env' needs the env's state box$"):
+        config(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0).resolve(4)
+
+
+def test_an_agent_derives_section5_for_its_own_actions_and_box():
+    """DGPQ(...) resolves its config with its own action count and state box: 2 actions on a box
+    of side 2 give other values than 4 actions on the unit square."""
+    kw = dict(sigma_tol2=None, eps1=None, eps=1.0, delta=0.96, r_max=2.0)
+    box = ([0.0, 0.0], [2.0, 2.0])
+    ag = DGPQ(config(**kw), seeds=[0], state_dim=2, num_actions=2, state_box=box)
+    want = config(**kw).resolve(2, box)
+    assert (ag.cfg.eps1, ag.cfg.sigma_tol2) == (want.eps1, want.sigma_tol2)
+    assert want.sigma_tol2 != config(**kw).resolve(4, box).sigma_tol2
+    assert want.sigma_tol2 != config(**kw).resolve(2, ([0.0, 0.0], [1.0, 1.0])).sigma_tol2
+
+
+def test_a_recorded_config_without_a_gp_section_upgrades_as_it_is():
+    d = {"gamma": 0.5}
+    assert DGPQConfig.upgrade(d) is d

@@ -1,3 +1,4 @@
+import math
 
 import pandas as pd
 import pytest
@@ -235,3 +236,61 @@ def test_kernel_training_settings_are_dgpqs_and_old_configs_still_load():
                        (dict(kernel_train_steps=0), "kernel_train_steps")):
         with pytest.raises(ValueError, match=match):
             with_overrides(DGPQConfig(), bad).resolve(4)
+
+
+# ---------------------------------------------------------------- the feature map's initialisation, by hand
+def _draws(n, count):
+    """A known 'uniform' source: every draw different, so a weight read from the wrong place shows."""
+    return (torch.arange(n * count, dtype=torch.float32).reshape(n, count) + 0.5) / (n * count)
+
+
+def test_initial_weights_are_glorot_uniform_read_in_order_from_the_draws():
+    """skip=True, hidden (3,), 2 inputs, 2 GPs: 15 draws per GP, read as weight0 (3, 2) with Glorot's
+    scale sqrt(6 / (2 + 3)), then bias0 (3,) unscaled, then the skip map (2, 3) at 0.01 -- each
+    2 u - 1, so in (-1, 1); float64 though the draws are float32."""
+    asked = []
+    k = ManifoldKernel(2, 2, hidden=(3,), uniform=lambda n, c: asked.append((n, c)) or _draws(n, c))
+    assert asked == [(2, 15)]
+    u = _draws(2, 15).double() * 2 - 1
+    assert torch.equal(k.weight0, u[:, :6].reshape(2, 3, 2) * math.sqrt(6 / 5))
+    assert torch.equal(k.bias0, u[:, 6:9])
+    assert torch.equal(k.skip_weight, u[:, 9:].reshape(2, 2, 3) * 0.01)
+    assert all(p.dtype == torch.float64 for p in k.parameters())
+    assert [name for name, _ in k.named_parameters()] == ["raw_lengthscale", "raw_outputscale", "weight0",
+                                                          "skip_weight", "bias0"]
+
+
+def test_without_skip_each_layer_has_its_own_glorot_scale_and_no_output_map():
+    k = ManifoldKernel(1, 2, hidden=(3, 4), skip=False, uniform=_draws)
+    u = _draws(1, 6 + 3 + 12 + 4).double() * 2 - 1
+    assert torch.equal(k.weight0, u[:, :6].reshape(1, 3, 2) * math.sqrt(6 / 5))
+    assert torch.equal(k.bias0, u[:, 6:9])
+    assert torch.equal(k.weight1, u[:, 9:21].reshape(1, 4, 3) * math.sqrt(6 / 7))
+    assert torch.equal(k.bias1, u[:, 21:])
+    assert not hasattr(k, "skip_weight") and k.depth == 2
+
+
+def test_the_default_kernel_and_its_default_draws():
+    """Defaults: one hidden layer of 10, tanh, skip, both scales 1, and draws from torch's generator
+    seeded 0 (float64) -- the same kernel every time it is made without a stream."""
+    k = ManifoldKernel(2, 3)
+    assert (k.hidden, k.skip, k.act) == ((10,), True, torch.tanh)
+    assert k.lengthscale.tolist() == [1.0, 1.0] and k.outputscale.tolist() == [1.0, 1.0]
+    u = torch.rand(2, 30 + 10 + 30, generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 2 - 1
+    assert torch.equal(k.weight0, u[:, :30].reshape(2, 10, 3) * math.sqrt(6 / 13))
+    assert torch.equal(k.skip_weight, u[:, 40:].reshape(2, 3, 10) * 0.01)
+    assert k.raw_lengthscale.dtype == torch.float64
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(batch_shape=()), r"^ManifoldKernel needs batch_shape \(N,\): one feature map per GP$"),
+    (dict(hidden=()), r"^hidden must be a non-empty list of positive widths, got \(\)$"),
+    (dict(hidden=(4, 0)), r"^hidden must be a non-empty list of positive widths, got \(4, 0\)$"),
+    (dict(activation="relu"), r"^activation must be one of \['sigmoid', 'softplus', 'tanh'\], got 'relu'$")])
+def test_bad_settings_are_refused_by_name(kw, match):
+    with pytest.raises(ValueError, match=match):
+        ManifoldKernel(**{"batch_shape": 2, "in_dim": 1, **kw})
+
+
+def test_a_hidden_layer_of_one_is_allowed():
+    assert ManifoldKernel(1, 1, hidden=(1,)).weight0.shape == (1, 1, 1)
