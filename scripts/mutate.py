@@ -5,6 +5,7 @@
     make mutate MODULES=collectors/evaluate.py TESTS="tests/test_evaluate.py" K="not push"
     python scripts/mutate.py envs/f16 --tests tests/test_f16.py -k "not slow"
     python scripts/mutate.py envs/f16 --again      # after new tests: retest only the survivors
+    python scripts/mutate.py envs/f16 --again --tests tests/test_f16.py -k model   # ... with the new tests only
     python scripts/mutate.py collectors/sweep.py --tests tests/test_sweep.py -k reuse --only '*x_reuse__mutmut_*'
                                                    # one function's mutants only
 
@@ -128,6 +129,14 @@ def stage(sources: list[str], tests: list[str], pytest_args: list[str]) -> None:
     (STAGE / "mutants").mkdir()
 
 
+def select(tests: list[str]) -> None:
+    """Set the staged run's test selection (the line ``stage`` wrote into its pyproject.toml)."""
+    path = STAGE / "pyproject.toml"
+    key = "pytest_add_cli_args_test_selection = "
+    lines = [key + json.dumps(tests) if line.startswith(key) else line for line in path.read_text().splitlines()]
+    path.write_text("\n".join(lines) + "\n")
+
+
 def mutmut(*args: str, env: dict) -> int:
     exe = Path(sys.executable).parent / "mutmut"
     return subprocess.call([str(exe), *args], cwd=STAGE, env=env)
@@ -192,7 +201,8 @@ def main(argv=None) -> int:
     p.add_argument("--max-children", type=int, default=None, help="parallel mutants (default: the cores)")
     p.add_argument("--again", action="store_true",
                    help="keep the last run's mutants; copy tests/ again and retest its survivors and the "
-                        "mutants it did not reach (a run stopped early) only")
+                        "mutants it did not reach (a run stopped early) only; with --tests, with those tests "
+                        "only (the survivors passed the first run's: e.g. the file with the new tests)")
     a = p.parse_args(argv)
     try:
         import mutmut as _  # noqa: F401
@@ -217,6 +227,8 @@ def main(argv=None) -> int:
             raise SystemExit("mutate: no earlier run in mutants/ to continue")
         shutil.rmtree(STAGE / "tests")
         shutil.copytree(ROOT / "tests", STAGE / "tests", ignore=shutil.ignore_patterns("__pycache__"))
+        if a.tests:  # the survivors passed every test of the first run: only the new ones can kill them
+            select(tests + pytest_args)
         again = [n for statuses in results().values() for n, s in statuses.items() if s in ("survived", "not checked")]
         again = [n for n in again if not a.only or any(fnmatch.fnmatch(n, pat) for pat in a.only)]
         print(f"mutate: retesting {len(again)} survivors and unchecked mutants with the tests as they are now")
