@@ -548,3 +548,76 @@ def test_an_agent_derives_section5_for_its_own_actions_and_box():
 def test_a_recorded_config_without_a_gp_section_upgrades_as_it_is():
     d = {"gamma": 0.5}
     assert DGPQConfig.upgrade(d) is d
+
+
+def test_make_hands_the_envs_device_to_q_hat_and_the_gps(monkeypatch):
+    """``make`` builds the agent on the env's device, and the agent hands it to the GPs it makes
+    (on a CPU-only machine the device is seen where it is passed: the GP factory is watched)."""
+    import trl_dgpq.dgpq as dgpq_module
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    env, agent = build(resolve_config(seeds=[0, 1]))
+    seen, make_gp = [], dgpq_module.make_gp
+    monkeypatch.setattr(dgpq_module, "make_gp", lambda *a: seen.append(a[-1]) or make_gp(*a))
+    DGPQ.make(agent.cfg, env.info, [0, 1])
+    assert seen == [env.info.device] and env.info.device is not None
+
+
+def test_no_seed_active_answers_on_the_agents_device():
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    _, agent = build(resolve_config(seeds=[0, 1]))
+    s = torch.rand(2, 2, dtype=D)
+    with torch.device("meta"):
+        out = agent.learn(s, torch.zeros(2, dtype=torch.long, device="cpu"), torch.ones(2, device="cpu"), s,
+                          torch.zeros(2, dtype=torch.bool, device="cpu"), active=torch.zeros(2, dtype=torch.bool,
+                                                                                             device="cpu"))
+    assert [(k, v.device.type, v.tolist()) for k, v in out.items()] == [("learn", "cpu", [False, False]),
+                                                                        ("update", "cpu", [False, False])]
+
+
+def test_float32_states_act_and_learn_as_their_float64_values():
+    """Step 1 and steps 3-6 take states of any float dtype: float32 states (exact in float64) give
+    the actions, Q̂ and GPs their float64 values give."""
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    agents = [build(resolve_config(seeds=[0, 1], sigma_tol2=0.5))[1] for _ in range(2)]
+    gen = torch.Generator().manual_seed(1)
+    states = [torch.rand(2, 2, generator=gen).float() for _ in range(8)]
+    for s, s2 in zip(states, states[1:]):
+        for agent, cast in zip(agents, (lambda x: x, lambda x: x.double())):
+            a = agent.select_action(cast(s))
+            agent.learn(cast(s), a, torch.full((2,), -1.0), cast(s2), torch.zeros(2, dtype=torch.bool))
+    assert agents[0].qhat_updates.sum() > 0
+    assert torch.equal(agents[0].qhat.mu, agents[1].qhat.mu) and torch.equal(agents[0].qhat.s, agents[1].qhat.s)
+
+
+def test_make_derives_section5_from_the_env_box_when_given_an_unresolved_config():
+    """``make`` on a config whose sigma_tol2 and eps1 are still to be derived gives the agent the
+    env's state box, so it derives what ``resolve_config`` would."""
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    kw = dict(seeds=[0], sigma_tol2=None, eps1=None, eps=1.0, delta=0.5, r_max=2.0, state_scale=(0.0, 3.0))
+    env, resolved = build(resolve_config(**kw))
+    unresolved = with_overrides(resolved.cfg, dict(sigma_tol2=None, eps1=None))
+    made = DGPQ.make(unresolved, env.info, [0])
+    assert (made.cfg.eps1, made.cfg.sigma_tol2) == (resolved.cfg.eps1, resolved.cfg.sigma_tol2)
+
+
+def test_the_scaled_state_box_of_a_box_away_from_zero():
+    """Each kept dimension's bounds times its weight: [-1, 1] x 3 and [2, 4] x 0.5; a dropped one gone."""
+    from types import SimpleNamespace
+    info = SimpleNamespace(observation_dim=3, device="cpu", state_box=lambda: ([-1.0, 5.0, 2.0], [1.0, 6.0, 4.0]))
+    cfg = config(sigma_tol2=None, eps1=None, eps=1.0, delta=0.5, r_max=2.0, state_scale=(3.0, 0.0, 0.5))
+    assert DGPQ._state_box(cfg, info) == ([-3.0, 1.0], [3.0, 2.0])
+
+
+def test_continuous_actions_are_refused_naming_dgpq():
+    """Each way in (resolve_config, make, the memory estimate) names the agent that refuses."""
+    import dataclasses
+    from trl_dgpq.collectors.experiment import build, resolve_config
+    with pytest.raises(ValueError, match="^dgpq needs discrete actions"):
+        resolve_config(env="liquidation", action_levels=0)
+    env, agent = build(resolve_config(env="liquidation", seeds=[0]))
+    from trl_dgpq.envs.liquidation.env import LiquidationEnv
+    continuous = LiquidationEnv.describe(dataclasses.replace(env.info.config, action_levels=0))
+    for call in (lambda: DGPQ.resolve_config(agent.cfg, continuous), lambda: DGPQ.make(agent.cfg, continuous, [0]),
+                 lambda: DGPQ.memory_bytes(agent.cfg, continuous, 1)):
+        with pytest.raises(ValueError, match="^dgpq needs discrete actions"):
+            call()
