@@ -294,3 +294,20 @@ def test_bad_settings_are_refused_by_name(kw, match):
 
 def test_a_hidden_layer_of_one_is_allowed():
     assert ManifoldKernel(1, 1, hidden=(1,)).weight0.shape == (1, 1, 1)
+
+
+def test_features_are_the_input_plus_the_output_map_of_the_hidden_layer_by_hand():
+    """M(x) = x + W_out tanh(W_1 x + b_1) with skip; tanh(W_1 x + b_1) without; one GP, 1 input,
+    one hidden unit, weights set by hand."""
+    for skip, want in ((True, 0.5 + 2.0 * math.tanh(3.0 * 0.5 - 1.0)), (False, math.tanh(3.0 * 0.5 - 1.0))):
+        k = ManifoldKernel(1, 1, hidden=(1,), skip=skip)
+        with torch.no_grad():
+            k.weight0.fill_(3.0), k.bias0.fill_(-1.0)
+            if skip:
+                k.skip_weight.fill_(2.0)
+        assert k.features(torch.tensor([[[0.5]]], dtype=D)).item() == pytest.approx(want, rel=1e-15)
+
+
+def test_a_float32_kernel_keeps_every_parameter_in_float32():
+    k = ManifoldKernel(2, 1, dtype=torch.float32)
+    assert {p.dtype for p in k.parameters()} == {torch.float32}
