@@ -119,6 +119,7 @@ def test_the_committed_publication_rebuilds_to_the_committed_files():
         row = results.row(name, run)
         for column in ("median", "iqm", "iqm_low", "iqm_high"):
             assert row[column] == pytest.approx(committed.loc[name, column], rel=1e-9), (name, column)
+        assert row["commit"] == committed.loc[name, "commit"], name
     claims = (to / "claims.md").read_text()
     for j in judged:
         assert table([j]).splitlines()[2] in claims, j.claim.key

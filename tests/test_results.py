@@ -3,6 +3,7 @@ The committed files and the next run's have the same columns, and every committe
 command resolves to its env, agent and preset."""
 import csv
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -66,6 +67,16 @@ def test_a_row_is_the_domains_measure_over_each_seeds_last_episodes(tmp_path):
     assert results.seeds_text([0, 2, 5]) == "0,2,5" and results.seeds_text([7]) == "7-7"
 
 
+def test_a_rows_commit_is_its_jobs_not_its_experiment_folders(tmp_path):
+    """A sweep experiment's own config records the commit it was laid out or merged at; the rows
+    were made by its jobs, at theirs: the row names those, in full, each once, in job order."""
+    run = load_run(fake_run(tmp_path / "r", "square", {0: [40, 20], 1: [30, 30]}, agent="dgpq"))
+    run.config.update(git={"commit": "f" * 40, "dirty": False},
+                      jobs=[dict(seeds=[0], commit="b" * 40, dirty=False), dict(seeds=[1], commit="a" * 40, dirty=True),
+                            dict(seeds=[2], commit="b" * 40, dirty=False)])
+    assert results.row("exp", run, command="x")["commit"] == f"{'b' * 40} {'a' * 40}-dirty"
+
+
 def test_report_writes_results_with_the_columns_the_repository_keeps(tmp_path):
     run = fake_run(tmp_path / "r", "square", {0: [40, 20, 10], 1: [30, 30, 30]}, agent="dgpq")
     assert report.main([str(run), "--out", str(tmp_path / "out")]) == 0
@@ -90,4 +101,9 @@ def test_every_committed_row_has_the_columns_and_a_command_that_resolves(path, c
         config = config_of(r["command"], capsys)
         assert (config["run"]["env"], config["run"]["agent"], config["run"]["preset"]) == (r["env"], r["agent"],
                                                                                           r["preset"]), r
-        assert len(r["commit"]) == 40
+        commits = r["commit"].split()
+        assert commits and all(re.fullmatch(r"[0-9a-f]{40}(-dirty)?", c) for c in commits), r["commit"]
+        report_md = path.parent / "REPORT.md"
+        if report_md.is_file():   # the commits REPORT.md names as those that made its rows
+            made = re.search(r"Runs made at commits ([^.]*)\.", report_md.read_text()).group(1)
+            assert all(c[:7] in made for c in commits), (r["experiment"], r["commit"])

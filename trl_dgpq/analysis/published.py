@@ -90,13 +90,14 @@ def load(folder, name: str) -> Run:
     return Run(data / name, df.reset_index(drop=True), recorded_config(folder, name))
 
 
-def commits_of(run: Run) -> list:
-    """Each job's commit of a run folder, a sweep experiment or a published experiment."""
+def commits_of(run: Run, length: int = 7) -> list:
+    """Each job's commit (its first ``length`` digits, "-dirty" if the tree was) of a run folder,
+    a sweep experiment or a published experiment: the code that made its rows."""
     jobs = run.config.get("jobs") if run.config else None
     if jobs is None:
         path = Path(run.path)
         jobs = job_commits(path) if path.is_dir() else []
-    return [(j.get("commit") or "?")[:7] + ("-dirty" if j.get("dirty") else "") for j in jobs]
+    return [(j.get("commit") or "?")[:length] + ("-dirty" if j.get("dirty") else "") for j in jobs]
 
 
 def stamp(scale: str, only, command: str) -> dict:

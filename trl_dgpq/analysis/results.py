@@ -18,6 +18,7 @@ from typing import Optional
 
 import numpy as np
 
+from .published import commits_of
 from .stats import iqm
 from .summary import last_episodes, ms_per_seed_step
 
@@ -97,7 +98,13 @@ def row(experiment: str, run, last: Optional[int] = None, command: Optional[str]
                 median=float(np.median(per_seed)), iqm=point, iqm_low=low, iqm_high=high,
                 us_per_seed_step=round(ms_per_seed_step(run.df) * 1e3, 1),
                 uses_model="; ".join(model_knowledge(run.config)),
-                commit=(cfg.get("git") or {}).get("commit", ""), command=command)
+                commit=commit_text(run), command=command)
+
+
+def commit_text(run) -> str:
+    """The commits of the code that made the run's rows (its jobs'; an experiment's own config
+    records the commit its sweep was laid out or merged at), each in full and once."""
+    return " ".join(dict.fromkeys(commits_of(run, length=40)))
 
 
 def write(rows: list, path: Path) -> Path:
