@@ -52,10 +52,13 @@ class ExactGP(BatchedGP):
 
     # ----------------------------------------------------------------- growth
     def growth_bytes(self) -> int:
-        """Bytes the next add may allocate: a full GP doubles every buffer (0 while all have room)."""
+        """Bytes the next add may allocate: a full GP has every GP's state made anew at twice the
+        capacity c (X, Y and z double, L goes from c^2 to 4 c^2; 0 while all have room)."""
         if not self.n.numel() or int(self.n.max()) < self.capacity:
             return 0
-        return 2 * sum(b.numel() * b.element_size() for b in self.buffers())
+        c = 2 * self.capacity if self.max_capacity is None else min(2 * self.capacity, self.max_capacity)
+        item = torch.empty((), dtype=self.dtype).element_size()
+        return self.num_gps * (item * (c * self.dim + 2 * c + c * c) + self.n.element_size())
 
     def _prepare_add(self, rows) -> None:
         n = self.n if rows is None else self.n[rows]

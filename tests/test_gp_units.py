@@ -1,0 +1,130 @@
+"""The exact GP's small parts by hand: the jitter ladder, its errors naming the failing GPs, the
+NLL's corner cases, growth and a grown GP's state, its settings (trl_dgpq/gp/exact.py, base.py)."""
+import math
+
+import pytest
+import torch
+
+from trl_dgpq.gp import ExactGP, GPNumericalError, RBFKernel
+from trl_dgpq.gp.exact import cholesky_jitter, cholesky_ladder
+
+D = torch.float64
+
+
+def test_the_ladder_adds_the_first_rung_that_fixes_each_matrix_times_its_own_scale():
+    """ones(2, 2) is singular: the first rung, 1e-10 times its scale 2, fixes it; the identity
+    needs none; info 0 for both."""
+    K = torch.stack((torch.ones(2, 2, dtype=D), torch.eye(2, dtype=D)))
+    L, info = cholesky_ladder(K, torch.tensor([2.0, 5.0], dtype=D))
+    assert info.tolist() == [0, 0]
+    assert torch.equal(L[0], torch.linalg.cholesky(torch.ones(2, 2, dtype=D) + 2e-10 * torch.eye(2, dtype=D)))
+    assert torch.equal(L[1], torch.eye(2, dtype=D))
+
+
+def test_a_matrix_no_rung_fixes_is_named():
+    """A negative first pivot (LAPACK's info 1) fails at every rung: the error names the matrix,
+    and the top rung; a non-finite entry is refused before any factorisation."""
+    K = torch.stack((torch.diag(torch.tensor([-1.0, 1.0], dtype=D)), torch.eye(2, dtype=D)))
+    names = lambda bad: str(bad.tolist())   # noqa: E731
+    with pytest.raises(GPNumericalError, match=r"^Cholesky failed even with jitter 0\.0001 in \[True, False\]$"):
+        cholesky_jitter(K, torch.ones(2, dtype=D), names)
+    assert cholesky_ladder(K, torch.ones(2, dtype=D))[1].tolist() == [1, 0]
+    nan = torch.eye(2, dtype=D).repeat(3, 1, 1)
+    nan[1, 0, 1] = math.nan
+    with pytest.raises(GPNumericalError, match=r"^non-finite covariance in \[False, True, False\]$"):
+        cholesky_jitter(nan, torch.ones(3, dtype=D), names)
+    with pytest.raises(GPNumericalError, match=r"^non-finite covariance in GP$"):
+        cholesky_jitter(nan, torch.ones(3, dtype=D))
+
+
+def test_gps_are_named_by_their_batch_index():
+    gp = ExactGP(RBFKernel(), 0.1, 1, batch_shape=(2, 4))
+    assert gp._gp_names(torch.tensor([0, 5, 7])) == "ExactGP batch index (0, 0), (1, 1), (1, 3)"
+    assert gp._gp_names(torch.arange(7)) == ("ExactGP batch index (0, 0), (0, 1), (0, 2), (0, 3), (1, 0) "
+                                              "(+2 more)")
+    assert ExactGP(RBFKernel(), 0.1, 1)._gp_names(torch.tensor([0])) == "ExactGP batch index ()"
+
+
+def test_the_nll_of_one_point_and_of_none_by_hand():
+    """One point y under k(x, x) = s and noise w: NLL = y^2 / (2 (s + w)) + log(s + w) / 2 + log(2 pi) / 2;
+    a GP holding nothing: 0, and ok; no GP selected: nothing."""
+    s, w = 1.5, 0.1
+    gp = ExactGP(RBFKernel(0.3, s), w, 1, batch_shape=(3,))
+    assert [t.tolist() for t in gp.neg_log_marginal_likelihood()] == [[0.0, 0.0, 0.0], [True, True, True]]
+    assert gp.neg_log_marginal_likelihood()[0].dtype == D
+    gp.add(torch.tensor([[0.2], [0.4], [0.9]], dtype=D), torch.tensor([2.0, -1.0, 0.0], dtype=D),
+           mask=torch.tensor([True, True, False]))
+    nll, ok = gp.neg_log_marginal_likelihood()
+    want = [y * y / (2 * (s + w)) + math.log(s + w) / 2 + math.log(2 * math.pi) / 2 for y in (2.0, -1.0)] + [0.0]
+    assert nll.tolist() == pytest.approx(want, rel=1e-14) and ok.all()
+    nll, ok = gp.neg_log_marginal_likelihood(torch.zeros(3, dtype=torch.bool))
+    assert nll.shape == ok.shape == (0,)
+
+
+def test_a_pivot_at_the_floor_gets_the_jitter_relative_to_k_xx():
+    """Two copies of one point without noise: the second pivot is 0, at most the floor
+    1e-12 (k(x,x) + noise); the first rung adds 1e-10 k(x,x) to it, so the new diagonal entry of L
+    is sqrt(1e-10 * 4) with k(x,x) = 4 (noise 1e-300: the likelihood refuses 0)."""
+    gp = ExactGP(RBFKernel(0.5, 4.0), 1e-300, 1, capacity=4)
+    x = torch.tensor([0.3], dtype=D)
+    gp.add(x, torch.tensor(1.0, dtype=D))
+    gp.add(x, torch.tensor(1.0, dtype=D))
+    assert gp.L[0, 1, 1].item() == pytest.approx(math.sqrt(4e-10), rel=1e-6)
+
+
+def test_a_gp_that_fails_every_rung_is_named_by_its_place_in_the_batch(monkeypatch):
+    """An update whose pivot stays below the floor at every rung (a NaN target variance) names
+    the GP by its batch index among those updated."""
+    gp = ExactGP(RBFKernel(0.5, 1.0), 0.1, 1, batch_shape=(3,))
+    gp.add(torch.tensor([[0.1], [0.2], [0.3]], dtype=D), torch.zeros(3, dtype=D))
+    d2 = torch.tensor([1.0, math.nan], dtype=D)
+    learn = torch.tensor([False, True, True])
+    gp._rows_in_flight = torch.tensor([0, 1, 2])
+    with pytest.raises(GPNumericalError, match=r"^Cholesky update failed even with jitter 0\.0001\*k\(x,x\) in "
+                                               r"ExactGP batch index \(2,\)$"):
+        gp._jitter(d2, torch.ones(2, dtype=D), torch.full((2,), 0.1, dtype=D), learn)
+
+
+def test_capacity_defaults_to_1024_and_doubles_when_full():
+    assert ExactGP(RBFKernel(), 0.1, 1).capacity == 1024
+    gp = ExactGP(RBFKernel(), 0.1, 1, batch_shape=(2,), capacity=1)
+    assert gp.growth_bytes() == 0
+    gp.add(torch.tensor([[0.1], [0.2]], dtype=D), torch.zeros(2, dtype=D), mask=torch.tensor([True, False]))
+    # at capacity 2, per GP: X 2 x 1, Y 2, z 2 and L 2 x 2 float64s, and n (int64): 88 bytes
+    assert gp.growth_bytes() == 2 * (8 * (2 + 2 + 2 + 4) + 8) == 176
+    gp.add(torch.tensor([[0.3], [0.4]], dtype=D), torch.zeros(2, dtype=D), mask=torch.tensor([True, False]))
+    assert gp.capacity == 2 and gp.size.tolist() == [2, 0]
+    assert sum(getattr(gp, k).numel() * getattr(gp, k).element_size() for k in ("X", "Y", "L", "z", "n")) == 176
+    big = ExactGP(RBFKernel(), 0.1, 3, capacity=2, max_capacity=3)
+    big.add(torch.zeros(3, dtype=D), torch.zeros((), dtype=D)), big.add(torch.ones(3, dtype=D), torch.zeros((), dtype=D))
+    assert big.growth_bytes() == 8 * (3 * 3 + 3 + 3 + 9) + 8     # grows to max_capacity 3, not 4
+
+
+@pytest.mark.parametrize("capacity", [0, 1.5, -1])
+def test_a_capacity_that_is_not_a_positive_integer_is_refused(capacity):
+    with pytest.raises(ValueError, match=rf"^capacity must be a positive integer, got {capacity}$"):
+        ExactGP(RBFKernel(), 0.1, 1, capacity=capacity)
+
+
+def test_a_full_gp_at_max_capacity_is_named():
+    gp = ExactGP(RBFKernel(), 0.1, 1, batch_shape=(3,), capacity=1, max_capacity=1)
+    gp.add(torch.tensor([[0.1], [0.2], [0.3]], dtype=D), torch.zeros(3, dtype=D),
+           mask=torch.tensor([False, True, True]))
+    with pytest.raises(GPNumericalError, match=r"^ExactGP batch index \(1,\), \(2,\) is full \(max_capacity=1 points\)$"):
+        gp.add(torch.tensor([[0.5], [0.6], [0.7]], dtype=D), torch.zeros(3, dtype=D),
+               mask=torch.tensor([False, True, False]))
+
+
+def test_a_grown_gp_loads_into_a_fresh_one_with_its_capacity():
+    """Saved after growing from 2 to 4 points of storage, a GP loads into a new one of capacity 2:
+    the new one takes capacity 4 and predicts bit for bit as the saved one."""
+    gp = ExactGP(RBFKernel(0.3, 1.0), 0.1, 1, batch_shape=(2,), capacity=2)
+    for t in range(3):
+        gp.add(torch.tensor([[0.1 * t], [0.2 * t + 0.05]], dtype=D), torch.tensor([t, -t], dtype=D))
+    assert gp.capacity == 4
+    other = ExactGP(RBFKernel(0.3, 1.0), 0.1, 1, batch_shape=(2,), capacity=2)
+    other.load_state_dict(gp.state_dict())
+    assert other.capacity == 4 and other.X.shape == (2, 4, 1) and torch.equal(other.L, gp.L)
+    xq = torch.tensor([[[0.15]], [[0.33]]], dtype=D)
+    for a, b in zip(gp.predict(xq), other.predict(xq)):
+        assert torch.equal(a, b)
