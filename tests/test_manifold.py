@@ -311,3 +311,8 @@ def test_features_are_the_input_plus_the_output_map_of_the_hidden_layer_by_hand(
 def test_a_float32_kernel_keeps_every_parameter_in_float32():
     k = ManifoldKernel(2, 1, dtype=torch.float32)
     assert {p.dtype for p in k.parameters()} == {torch.float32}
+
+
+def test_the_kernel_says_what_it_is():
+    assert repr(ManifoldKernel(2, 3, hidden=(4,), skip=False)).startswith(
+        "ManifoldKernel(batch_shape=(2,), in_dim=3, hidden=(4,), skip=False")

@@ -35,6 +35,8 @@ def test_an_env_step_budget_keeps_its_episode_cap_unless_the_cap_followed_it():
         dict(episodes=4, env_steps=4), dict(episodes=7, env_steps=7)]
     assert stage_lengths(dict(episodes=5, env_steps=3), (0.1, 1.0)) == [dict(episodes=5, env_steps=1),
                                                                        dict(episodes=5, env_steps=3)]
+    # a quarter of 10 steps is 2.5: the stage ends after 3 (rounded up, never to the even 2)
+    assert stage_lengths(dict(episodes=100, env_steps=10), (0.25, 1.0))[0] == dict(episodes=100, env_steps=3)
 
 
 def test_settings_are_shown_to_four_digits_and_lists_joined():
