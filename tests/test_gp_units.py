@@ -43,6 +43,8 @@ def test_gps_are_named_by_their_batch_index():
     assert gp._gp_names(torch.arange(7)) == ("ExactGP batch index (0, 0), (0, 1), (0, 2), (0, 3), (1, 0) "
                                               "(+2 more)")
     assert ExactGP(RBFKernel(), 0.1, 1)._gp_names(torch.tensor([0])) == "ExactGP batch index ()"
+    assert gp._gp_names(torch.arange(5)).endswith("(1, 0)")                 # five: all named
+    assert gp._gp_names(torch.arange(6)).endswith("(1, 0) (+1 more)")
 
 
 def test_the_nll_of_one_point_and_of_none_by_hand():
@@ -75,13 +77,12 @@ def test_a_pivot_at_the_floor_gets_the_jitter_relative_to_k_xx():
 def test_a_gp_that_fails_every_rung_is_named_by_its_place_in_the_batch(monkeypatch):
     """An update whose pivot stays below the floor at every rung (a NaN target variance) names
     the GP by its batch index among those updated."""
-    gp = ExactGP(RBFKernel(0.5, 1.0), 0.1, 1, batch_shape=(3,))
-    gp.add(torch.tensor([[0.1], [0.2], [0.3]], dtype=D), torch.zeros(3, dtype=D))
+    gp = ExactGP(RBFKernel(0.5, 1.0), 0.1, 1, batch_shape=(2, 4))
     d2 = torch.tensor([1.0, math.nan], dtype=D)
     learn = torch.tensor([False, True, True])
-    gp._rows_in_flight = torch.tensor([0, 1, 2])
+    gp._rows_in_flight = torch.tensor([1, 4, 6])   # the update's rows among the batch's (2, 4)
     with pytest.raises(GPNumericalError, match=r"^Cholesky update failed even with jitter 0\.0001\*k\(x,x\) in "
-                                               r"ExactGP batch index \(2,\)$"):
+                                               r"ExactGP batch index \(1, 2\)$"):
         gp._jitter(d2, torch.ones(2, dtype=D), torch.full((2,), 0.1, dtype=D), learn)
 
 
@@ -98,6 +99,8 @@ def test_capacity_defaults_to_1024_and_doubles_when_full():
     big = ExactGP(RBFKernel(), 0.1, 3, capacity=2, max_capacity=3)
     big.add(torch.zeros(3, dtype=D), torch.zeros((), dtype=D)), big.add(torch.ones(3, dtype=D), torch.zeros((), dtype=D))
     assert big.growth_bytes() == 8 * (3 * 3 + 3 + 3 + 9) + 8     # grows to max_capacity 3, not 4
+    big.add(torch.full((3,), 2.0, dtype=D), torch.zeros((), dtype=D))
+    assert big.capacity == 3 and big.size.tolist() == 3
 
 
 @pytest.mark.parametrize("capacity", [0, 1.5, -1])
@@ -118,13 +121,41 @@ def test_a_full_gp_at_max_capacity_is_named():
 def test_a_grown_gp_loads_into_a_fresh_one_with_its_capacity():
     """Saved after growing from 2 to 4 points of storage, a GP loads into a new one of capacity 2:
     the new one takes capacity 4 and predicts bit for bit as the saved one."""
-    gp = ExactGP(RBFKernel(0.3, 1.0), 0.1, 1, batch_shape=(2,), capacity=2)
+    gp = ExactGP(RBFKernel(0.3, 1.0), 0.1, 2, batch_shape=(2,), capacity=2)   # 2 inputs: dim = capacity
     for t in range(3):
-        gp.add(torch.tensor([[0.1 * t], [0.2 * t + 0.05]], dtype=D), torch.tensor([t, -t], dtype=D))
+        gp.add(torch.tensor([[0.1 * t, 0.5], [0.2 * t + 0.05, 0.1]], dtype=D), torch.tensor([t, -t], dtype=D))
     assert gp.capacity == 4
-    other = ExactGP(RBFKernel(0.3, 1.0), 0.1, 1, batch_shape=(2,), capacity=2)
+    other = ExactGP(RBFKernel(0.3, 1.0), 0.1, 2, batch_shape=(2,), capacity=2)
     other.load_state_dict(gp.state_dict())
-    assert other.capacity == 4 and other.X.shape == (2, 4, 1) and torch.equal(other.L, gp.L)
-    xq = torch.tensor([[[0.15]], [[0.33]]], dtype=D)
+    assert other.capacity == 4 and other.X.shape == (2, 4, 2) and torch.equal(other.L, gp.L)
+    xq = torch.tensor([[[0.15, 0.2]], [[0.33, 0.4]]], dtype=D)
     for a, b in zip(gp.predict(xq), other.predict(xq)):
         assert torch.equal(a, b)
+
+
+def test_a_pivot_at_or_below_its_floor_gets_the_first_rung():
+    """The floor is 1e-12 (k(x,x) + noise): with k(x,x) 1 and noise 3, a pivot of 1e-12 is under it and
+    gets 1e-10 k(x,x); one exactly at it too; one of 1e-11 above it is kept."""
+    gp = ExactGP(RBFKernel(), 3.0, 1)
+    kxx, noise, learn = torch.ones(1, dtype=D), torch.full((1,), 3.0, dtype=D), torch.ones(1, dtype=torch.bool)
+    floor = 1e-12 * (kxx + noise)
+    for d2, want in ((torch.tensor([1e-12], dtype=D), 1e-12 + 1e-10), (floor.clone(), float(floor) + 1e-10),
+                     (torch.tensor([1e-11], dtype=D), 1e-11)):
+        assert gp._jitter(d2, kxx, noise, learn).item() == want
+
+
+@pytest.mark.parametrize("kw, error, match", [
+    (dict(dim=0), ValueError, r"^dim must be a positive integer, got 0$"),
+    (dict(batch_shape=(2, 0)), ValueError, r"^batch_shape entries must be >= 1, got \(2, 0\)$"),
+    (dict(kernel=torch.nn.Linear(1, 1)), TypeError, r"^kernel must be a trl_dgpq.gp.Kernel, got Linear$")])
+def test_a_gp_that_cannot_be_made_is_refused_in_its_words(kw, error, match):
+    with pytest.raises(error, match=match):
+        ExactGP(**{"kernel": RBFKernel(), "noise_var": 0.1, "dim": 1, **kw})
+
+
+def test_inputs_are_taken_as_tensors_and_a_non_finite_one_is_named():
+    gp = ExactGP(RBFKernel(0.3, 1.0), 0.1, 1)
+    gp.add([0.25], 1.0)                                   # a list and a float: as tensors
+    assert gp.X[0, 0].tolist() == [0.25] and gp.Y[0, 0].item() == 1.0
+    with pytest.raises(ValueError, match="^y contains NaN or inf$"):
+        gp.add([0.5], math.inf)
