@@ -53,7 +53,7 @@ def test_the_nll_of_one_point_and_of_none_by_hand():
     s, w = 1.5, 0.1
     gp = ExactGP(RBFKernel(0.3, s), w, 1, batch_shape=(3,))
     assert [t.tolist() for t in gp.neg_log_marginal_likelihood()] == [[0.0, 0.0, 0.0], [True, True, True]]
-    assert gp.neg_log_marginal_likelihood()[0].dtype == D
+    assert [t.dtype for t in gp.neg_log_marginal_likelihood()] == [D, torch.bool]
     gp.add(torch.tensor([[0.2], [0.4], [0.9]], dtype=D), torch.tensor([2.0, -1.0, 0.0], dtype=D),
            mask=torch.tensor([True, True, False]))
     nll, ok = gp.neg_log_marginal_likelihood()
@@ -101,6 +101,10 @@ def test_capacity_defaults_to_1024_and_doubles_when_full():
     assert big.growth_bytes() == 8 * (3 * 3 + 3 + 3 + 9) + 8     # grows to max_capacity 3, not 4
     big.add(torch.full((3,), 2.0, dtype=D), torch.zeros((), dtype=D))
     assert big.capacity == 3 and big.size.tolist() == 3
+    for max_capacity, grown in ((None, 4), (5, 4), (3, 3)):     # twice 2, unless the maximum is less
+        gp = ExactGP(RBFKernel(), 0.1, 1, capacity=2, max_capacity=max_capacity)
+        gp.add(torch.zeros(1, dtype=D), torch.zeros((), dtype=D)), gp.add(torch.ones(1, dtype=D), torch.zeros((), dtype=D))
+        assert gp.growth_bytes() == 8 * (grown + grown + grown + grown * grown) + 8, max_capacity
 
 
 @pytest.mark.parametrize("capacity", [0, 1.5, -1])
