@@ -129,12 +129,39 @@ def stage(sources: list[str], tests: list[str], pytest_args: list[str]) -> None:
     (STAGE / "mutants").mkdir()
 
 
+SELECTION = "pytest_add_cli_args_test_selection = "
+
+
+def selection() -> list[str]:
+    """The staged run's test selection (the line ``stage`` wrote into its pyproject.toml)."""
+    line = next(x for x in (STAGE / "pyproject.toml").read_text().splitlines() if x.startswith(SELECTION))
+    return json.loads(line[len(SELECTION):])
+
+
 def select(tests: list[str]) -> None:
-    """Set the staged run's test selection (the line ``stage`` wrote into its pyproject.toml)."""
+    """Set the staged run's test selection."""
     path = STAGE / "pyproject.toml"
-    key = "pytest_add_cli_args_test_selection = "
-    lines = [key + json.dumps(tests) if line.startswith(key) else line for line in path.read_text().splitlines()]
+    lines = [SELECTION + json.dumps(tests) if x.startswith(SELECTION) else x for x in path.read_text().splitlines()]
     path.write_text("\n".join(lines) + "\n")
+
+
+def verdicts() -> dict:
+    """{meta file: mutmut's exit code by mutant} of the staged run."""
+    return {meta: json.loads(meta.read_text())["exit_code_by_key"]
+            for meta in (STAGE / "mutants").rglob("*.py.meta")}
+
+
+def keep(before: dict, retested: set) -> None:
+    """Put back the verdicts ``before`` of the mutants not retested (mutmut forgets them)."""
+    for meta, codes in before.items():
+        if not meta.is_file():
+            continue
+        data = json.loads(meta.read_text())
+        now = data["exit_code_by_key"]
+        for name, code in codes.items():
+            if name not in retested:
+                now[name] = code
+        meta.write_text(json.dumps(data))
 
 
 def mutmut(*args: str, env: dict) -> int:
@@ -201,8 +228,9 @@ def main(argv=None) -> int:
     p.add_argument("--max-children", type=int, default=None, help="parallel mutants (default: the cores)")
     p.add_argument("--again", action="store_true",
                    help="keep the last run's mutants; copy tests/ again and retest its survivors and the "
-                        "mutants it did not reach (a run stopped early) only; with --tests, with those tests "
-                        "only (the survivors passed the first run's: e.g. the file with the new tests)")
+                        "mutants it did not reach (a run stopped early) only, with the first run's tests (its -k "
+                        "too); with --tests (and -k), its survivors only, with those tests only (they passed the "
+                        "first run's: e.g. the file with the new tests); the other mutants keep their verdicts")
     a = p.parse_args(argv)
     try:
         import mutmut as _  # noqa: F401
@@ -227,12 +255,24 @@ def main(argv=None) -> int:
             raise SystemExit("mutate: no earlier run in mutants/ to continue")
         shutil.rmtree(STAGE / "tests")
         shutil.copytree(ROOT / "tests", STAGE / "tests", ignore=shutil.ignore_patterns("__pycache__"))
-        if a.tests:  # the survivors passed every test of the first run: only the new ones can kill them
-            select(tests + pytest_args)
-        again = [n for statuses in results().values() for n, s in statuses.items() if s in ("survived", "not checked")]
+        # With --tests, survivors only: they passed every test of the earlier run, so only the given (new)
+        # tests can kill them; a mutant that run never reached still needs all of its tests.
+        retest = ("survived",) if a.tests else ("survived", "not checked")
+        again = [n for statuses in results().values() for n, s in statuses.items() if s in retest]
         again = [n for n in again if not a.only or any(fnmatch.fnmatch(n, pat) for pat in a.only)]
-        print(f"mutate: retesting {len(again)} survivors and unchecked mutants with the tests as they are now")
-        rc = mutmut("run", *extra, *again, env=env) if again else 0
+        print(f"mutate: retesting {len(again)} mutants ({' and '.join(retest)}) with the tests as they are now")
+        before = verdicts()
+        if a.tests:
+            first = selection()
+            select(tests + pytest_args)
+        try:
+            rc = mutmut("run", *extra, *again, env=env) if again else 0
+        finally:
+            if a.tests:
+                select(first)
+            # mutmut resets every verdict when its config (the selection) changes, and records only the
+            # mutants a named run ran: the others keep what the earlier runs found
+            keep(before, set(again))
     else:
         print(f"mutate: {', '.join(sources)} with {' '.join(tests + pytest_args)}")
         stage(sources, tests, pytest_args)

@@ -501,13 +501,13 @@ def test_section5_covers_the_scaled_state_box():
     assert (agent.cfg.eps1, agent.cfg.sigma_tol2) == (eps1, sigma_tol2)
 
 
-@pytest.mark.parametrize("top", [1e6, -1e6, 0.5])
+@pytest.mark.parametrize("top", [1e6, -1e6, 0.5, 1e-3])
 def test_ties_are_within_a_relative_1e_12(top):
     """Values within 1e-12 * max(|top|, 1) of the top tie (rounding of a sum is not a preference);
-    further apart they do not."""
+    further apart they do not. Below 1 the tolerance stays 1e-12 (0.9 of it ties at top 1e-3)."""
     tol = 1e-12 * max(abs(top), 1.0)
     u = torch.tensor([[0.1, 0.9, 0.5]], dtype=D)
-    near = torch.tensor([[top, top - 0.5 * tol, top - 3 * tol]], dtype=D)
+    near = torch.tensor([[top, top - 0.9 * tol, top - 3 * tol]], dtype=D)
     assert argmax_random_ties(near, u).tolist() == [1]          # the near one ties, and has the larger u
     far = torch.tensor([[top, top - 1.5 * tol, top - 3 * tol]], dtype=D)
     assert argmax_random_ties(far, u).tolist() == [0]
@@ -556,10 +556,17 @@ def test_make_hands_the_envs_device_to_q_hat_and_the_gps(monkeypatch):
     import trl_dgpq.dgpq as dgpq_module
     from trl_dgpq.collectors.experiment import build, resolve_config
     env, agent = build(resolve_config(seeds=[0, 1]))
+    import dataclasses
+    import inspect
     seen, make_gp = [], dgpq_module.make_gp
-    monkeypatch.setattr(dgpq_module, "make_gp", lambda *a: seen.append(a[-1]) or make_gp(*a))
-    DGPQ.make(agent.cfg, env.info, [0, 1])
-    assert seen == [env.info.device] and env.info.device is not None
+    device = torch.device("cpu", 0)     # a device the code would not name by itself
+    monkeypatch.setattr(dgpq_module, "make_gp", lambda *a, **k: seen.append(
+        inspect.signature(make_gp).bind(*a, **k).arguments.get("device")) or make_gp(*a, **k))
+    qhat_devices, lipschitz_q = [], dgpq_module.LipschitzQ
+    monkeypatch.setattr(dgpq_module, "LipschitzQ", lambda *a, **k: qhat_devices.append(
+        inspect.signature(lipschitz_q).bind(*a, **k).arguments.get("device")) or lipschitz_q(*a, **k))
+    DGPQ.make(agent.cfg, dataclasses.replace(env.info, device=device), [0, 1])
+    assert seen == [device] and qhat_devices == [device]
 
 
 def test_no_seed_active_answers_on_the_agents_device():
@@ -585,8 +592,12 @@ def test_float32_states_act_and_learn_as_their_float64_values():
         for agent, cast in zip(agents, (lambda x: x, lambda x: x.double())):
             a = agent.select_action(cast(s))
             agent.learn(cast(s), a, torch.full((2,), -1.0), cast(s2), torch.zeros(2, dtype=torch.bool))
-    assert agents[0].qhat_updates.sum() > 0
+    assert agents[0].qhat_updates.sum() > 0 and agents[0].gp_adds.sum() > 0
     assert torch.equal(agents[0].qhat.mu, agents[1].qhat.mu) and torch.equal(agents[0].qhat.s, agents[1].qhat.s)
+    for a, b in zip(agents[0].gp.state_dict().values(), agents[1].gp.state_dict().values()):
+        assert torch.equal(a, b)
+    s = torch.rand(2, 2, generator=gen).float()
+    assert torch.equal(agents[0].select_action(s), agents[1].select_action(s.double()))
 
 
 def test_make_derives_section5_from_the_env_box_when_given_an_unresolved_config():

@@ -74,7 +74,7 @@ def test_a_pivot_at_the_floor_gets_the_jitter_relative_to_k_xx():
     assert gp.L[0, 1, 1].item() == pytest.approx(math.sqrt(4e-10), rel=1e-6)
 
 
-def test_a_gp_that_fails_every_rung_is_named_by_its_place_in_the_batch(monkeypatch):
+def test_a_gp_that_fails_every_rung_is_named_by_its_place_in_the_batch():
     """An update whose pivot stays below the floor at every rung (a NaN target variance) names
     the GP by its batch index among those updated."""
     gp = ExactGP(RBFKernel(0.5, 1.0), 0.1, 1, batch_shape=(2, 4))
@@ -101,6 +101,7 @@ def test_capacity_defaults_to_1024_and_doubles_when_full():
     assert big.growth_bytes() == 8 * (3 * 3 + 3 + 3 + 9) + 8     # grows to max_capacity 3, not 4
     big.add(torch.full((3,), 2.0, dtype=D), torch.zeros((), dtype=D))
     assert big.capacity == 3 and big.size.tolist() == 3
+    assert big.growth_bytes() == 0        # full at its maximum: the next add refuses, nothing grows
     for max_capacity, grown in ((None, 4), (5, 4), (3, 3)):     # twice 2, unless the maximum is less
         gp = ExactGP(RBFKernel(), 0.1, 1, capacity=2, max_capacity=max_capacity)
         gp.add(torch.zeros(1, dtype=D), torch.zeros((), dtype=D)), gp.add(torch.ones(1, dtype=D), torch.zeros((), dtype=D))

@@ -21,6 +21,7 @@ def test_the_defaults_are_the_documented_ones():
     (dict(episodes=10, env_steps=0), (0.25, 0.5, 0.7, 1.0), [3, 5, 7, 10]),
     # stages that round to one length are one stage; never below 1 episode
     (dict(episodes=10, env_steps=0), (0.01, 0.02, 1.0), [1, 10]),
+    (dict(episodes=10, env_steps=0), (1e-12, 1.0), [1, 10]),
 ])
 def test_an_episode_budget_is_cut_into_stages_by_hand(run, fractions, want):
     assert stage_lengths(run, fractions) == [dict(episodes=e, env_steps=0) for e in want]

@@ -42,10 +42,12 @@ class ExactGP(BatchedGP):
 
     def _empty_state(self, k: int) -> State:
         c, kw = self.capacity, dict(dtype=self.dtype, device=self.device)
+        L = torch.zeros(k, c, c, **kw)
+        L.diagonal(dim1=-2, dim2=-1).fill_(1.0)   # identity rows, made in place: no c x c temporary
         return dict(
             X=torch.zeros(k, c, self.dim, **kw),
             Y=torch.zeros(k, c, **kw),
-            L=torch.eye(c, **kw).expand(k, c, c).clone(),
+            L=L,
             z=torch.zeros(k, c, **kw),
             n=torch.zeros(k, dtype=torch.long, device=self.device),
         )
@@ -56,9 +58,10 @@ class ExactGP(BatchedGP):
         capacity c (X, Y and z double, L goes from c^2 to 4 c^2; 0 while all have room)."""
         if not self.n.numel() or int(self.n.max()) < self.capacity:
             return 0
+        if self.max_capacity is not None and self.capacity >= self.max_capacity:
+            return 0     # no growth: the add refuses the full GP instead
         c = 2 * self.capacity if self.max_capacity is None else min(2 * self.capacity, self.max_capacity)
-        item = torch.empty((), dtype=self.dtype).element_size()
-        return self.num_gps * (item * (c * self.dim + 2 * c + c * c) + self.n.element_size())
+        return self.num_gps * (self.X.element_size() * (c * self.dim + 2 * c + c * c) + self.n.element_size())
 
     def _prepare_add(self, rows) -> None:
         n = self.n if rows is None else self.n[rows]
