@@ -3,6 +3,7 @@ rebuilt, with no runs/ folder."""
 import json
 import lzma
 import shutil
+import tempfile
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -115,11 +116,15 @@ def test_the_committed_publication_rebuilds_to_the_committed_files():
     judged = [reproduce_judge(c, runs, stamp["scale"]) for m in parts for c in declared_now(m)]
     from trl_dgpq.analysis import results
     committed = pd.read_csv(to / "results.csv").set_index("experiment")
+    lines = {line.split(",", 1)[0]: line for line in (to / "results.csv").read_text().splitlines()[1:]}
     for name, run in runs.items():
         row = results.row(name, run)
         for column in ("median", "iqm", "iqm_low", "iqm_high"):
             assert row[column] == pytest.approx(committed.loc[name, column], rel=1e-9), (name, column)
         assert row["commit"] == committed.loc[name, "commit"], name
+        with tempfile.TemporaryDirectory() as tmp:   # every column, as results.csv writes it
+            rebuilt = results.write([row], Path(tmp) / "r.csv").read_text().splitlines()[1]
+        assert rebuilt == lines[name], name
     claims = (to / "claims.md").read_text()
     for j in judged:
         assert table([j]).splitlines()[2] in claims, j.claim.key
