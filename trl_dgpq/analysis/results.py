@@ -7,8 +7,9 @@ came out (the domain's measure, each seed's mean over its last ``last`` episodes
 budget -- ``summary.last_episodes``, as the at-budget columns --, then the median, and the
 IQM with its 95 % bootstrap CI, over seeds), what it cost (microseconds per seed-step), what of
 the env's model it uses (``uses_model``: empty for a model-free run), the commits of the
-code that made its rows (each job's, in full, once; ``-dirty`` if its tree was), and the command that runs it again: ``train.py`` with the run's preset and a ``--set`` for
-every setting that differs from it.
+code that made its rows (each job's, in full, once; ``-dirty`` if its tree was), and the
+command that runs it again: ``train.py`` with the run's preset and a ``--set`` for every
+setting that differs from it.
 """
 from __future__ import annotations
 

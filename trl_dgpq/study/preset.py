@@ -2,7 +2,6 @@
 provenance (refusing to replace another study's preset unless forced)."""
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Optional, Tuple
@@ -12,7 +11,7 @@ from trl_dgpq.collectors.experiment import classes, split_overrides
 from trl_dgpq.config import find_leaf
 from trl_dgpq.presets import check_preset_name, preset_overrides, tuned_name, write_tuned
 
-from .config import shown
+from .config import plain, shown
 from .storage import portable
 
 
@@ -95,8 +94,7 @@ class Preset:
         rewriting it would stamp it with a later commit than the one its trials ran at."""
         old = self.written(name) or {}
         kept = {k: v for k, v in (old.get("provenance") or {}).items() if k not in ("date", "commit")}
-        same = lambda a, b: json.loads(json.dumps(a)) == json.loads(json.dumps(b))  # noqa: E731
-        return bool(old) and same(old.get("preset"), sections) and same(kept, record)
+        return bool(old) and plain(old.get("preset")) == plain(sections) and plain(kept) == plain(record)
 
     def value_of(self, section: str, key: str):
         """A given setting's value as the study's config resolved it."""
