@@ -331,6 +331,75 @@ def bench_qhat(args):
     print(f"wrote {out}")
 
 
+def bench_qhat_index(args):
+    """Eq. 7 through the index (``ChunkIndex``) against the full scan, the same Q̂ and queries: ms
+    per query (S x A rows), their ratio, and the share of slots the index scanned. The Q̂ is a run's
+    (``--checkpoint``: a DGPQ run's checkpoint.pt, queried at states it holds, moved by 1e-3) or a
+    synthetic one per width: a random walk in the unit box (dim 5, steps of 0.03) with mu = sum of
+    0.8 sin(3 s) plus noise of 0.1, a slope under L = 5 as a Lipschitz envelope's pairs have."""
+    from trl_dgpq import qhat as Q
+
+    cases = []
+    if args.checkpoint:
+        state = torch.load(args.checkpoint, weights_only=False)["agent"]["qhat"]
+        used = torch.isfinite(state["mu"][0, 0])
+        cases.append((f"checkpoint {args.checkpoint}", state,
+                      state["s"][:, 0][:, used][:, ::max(1, int(used.sum()) // args.queries)][:, :args.queries]
+                      .transpose(0, 1).contiguous() + 1e-3))
+    gen = torch.Generator().manual_seed(0)
+    S, A, dim = args.seeds, 3, 5
+    for width in ([] if args.checkpoint else args.widths):
+        pts = ((torch.randn(S * A, width, dim, generator=gen, dtype=torch.float64) * 0.03).cumsum(1) + 1) % 2 - 1
+        mu = (torch.sin(3 * pts) * 0.8).sum(-1) + 0.1 * torch.randn(S * A, width, generator=gen, dtype=torch.float64)
+        state = dict(s=pts.view(S, A, width, dim), mu=mu.view(S, A, width), width=width, version=1)
+        walk = pts.view(S, A, width, dim)[:, 0, ::max(1, width // args.queries)][:, :args.queries] + 1e-3
+        cases.append((f"synthetic, {width:,} pairs a row", state, walk.transpose(0, 1).contiguous()))
+    results = []
+    print(f"Q̂ through the index against the scan (L = {args.lipschitz}, l1); torch threads {torch.get_num_threads()}")
+    for label, state, queries in cases:
+        S, A, cap, dim = state["s"].shape
+        timed, values = {}, {}
+        for name, index_min in (("scan", 10 ** 12), ("index", 1)):
+            q = Q.LipschitzQ(S, A, dim, args.lipschitz, 1e9, capacity=cap, index_min=index_min)
+            q.load_state_dict(state)
+            q(queries[0])                                      # the index is built here, not timed
+            timed[name] = timeit(lambda: [q(x) for x in queries], min_reps=1, repeats=args.repeats) / len(queries)
+            values[name] = [q(x) for x in queries]
+        same = all(torch.equal(a, b) for a, b in zip(values["scan"], values["index"]))
+        scanned = _index_scanned(q, queries)
+        r = dict(case=label, rows=S * A, width=int(state["width"]), scan_ms=round(timed["scan"] * 1e3, 3),
+                 index_ms=round(timed["index"] * 1e3, 3), ratio=round(timed["scan"] / timed["index"], 2),
+                 scanned_share=round(scanned, 4), same_values=same)
+        results.append(r)
+        print(f"  {label}: width {r['width']:,}, scan {r['scan_ms']:.3f} ms, index {r['index_ms']:.3f} ms "
+              f"(x{r['ratio']:.2f}); the index scanned {100 * scanned:.1f} % of the slots; values the same: {same}",
+              flush=True)
+    out = Path(args.out or "bench-qhat-index.json")
+    out.write_text(json.dumps(dict(meta=dict(threads=torch.get_num_threads(), repeats=args.repeats,
+                                             statistic="min over repeats of the mean per query"),
+                                   results=results), indent=1))
+    print(f"wrote {out}")
+
+
+def _index_scanned(q, queries) -> float:
+    """The share of Q̂'s slots (rows x width) the index opened, averaged over ``queries``."""
+    from trl_dgpq import qhat as Q
+    opened = []
+    take = Q._take
+
+    def counting(t, rows, at):
+        if t is q.index.order:
+            opened.append(at.numel() * t.shape[-1])
+        return take(t, rows, at)
+    Q._take = counting
+    try:
+        for x in queries:
+            q(x)
+    finally:
+        Q._take = take
+    return sum(opened) / len(queries) / (q.S * q.A * q.width)
+
+
 IMPORTS = ("trl_dgpq", "trl_dgpq.dgpq", "trl_dgpq.collectors.experiment")
 COUNT_WORLDS = """
 import runpy, sys, tempfile, pybullet
@@ -444,7 +513,16 @@ def main(argv=None):
     q.add_argument("--repeats", type=int, default=5)
     q.add_argument("--out", default=None)
     q.set_defaults(fn=bench_qhat)
-    for in_process in (g, d, q):   # timed in this process (the others set their own threads)
+    qi = sub.add_parser("qhat-index", help="Eq. 7 through Q̂'s index against the full scan")
+    qi.add_argument("--checkpoint", default=None, help="a DGPQ run's checkpoint.pt (default: synthetic Q̂s)")
+    qi.add_argument("--widths", nargs="+", type=int, default=[16384, 65536, 150000])
+    qi.add_argument("--seeds", type=int, default=4)
+    qi.add_argument("--lipschitz", type=float, default=5.0)
+    qi.add_argument("--queries", type=int, default=50)
+    qi.add_argument("--repeats", type=int, default=3)
+    qi.add_argument("--out", default=None)
+    qi.set_defaults(fn=bench_qhat_index)
+    for in_process in (g, d, q, qi):   # timed in this process (the others set their own threads)
         in_process.add_argument("--threads", type=int, default=1,
                                 help="torch intra-op threads (1: as every run uses by default)")
         in_process.set_defaults(in_process=True)

@@ -3,6 +3,7 @@ when only some rows are full, the version count, the memory a growth takes, the 
 without cancellation, its state, and its refusals. Eq. 7's values: test_dgpq.py."""
 import math
 
+import pandas as pd
 import pytest
 import torch
 
@@ -121,3 +122,165 @@ def test_one_full_row_among_others_with_room_grows_the_storage():
     q.insert(t([[9.0], [0.0]]), a, t([2.0, 0.0]), first)
     q.insert(t([[20.0], [5.0]]), a, t([3.0, 4.0]), torch.tensor([True, True]))
     assert q.capacity == 4 and q.mu[:, 0].tolist() == [[1.0, 2.0, 3.0, math.inf], [4.0, math.inf, math.inf, math.inf]]
+
+
+# ---------------------------------------------------------------- the index (ChunkIndex)
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from trl_dgpq import qhat as qhat_module  # noqa: E402
+
+
+def twins(S, A, dim, L, metric, chunk=2, fan=2, **kw):
+    """A Q̂ that always scans and one that answers through an index of tiny chunks and groups from
+    its first pair on, so that a few dozen pairs fill several groups."""
+    scan = LipschitzQ(S, A, dim, L, 50.0, metric, index_min=10**9, **kw)
+    index = LipschitzQ(S, A, dim, L, 50.0, metric, index_min=1, chunk=chunk, fan=fan, **kw)
+    return scan, index
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), metric=st.sampled_from(sorted(("l1", "l2", "linf"))),
+       dim=st.integers(1, 3), chunk=st.integers(1, 4), fan=st.integers(2, 3),
+       lipschitz=st.sampled_from([0.3, 1.0, 7.0]), grid=st.booleans())
+def test_the_index_gives_the_scans_values_and_prunes_the_same_pairs(seed, metric, dim, chunk, fan, lipschitz, grid):
+    """Eq. 7's values and the storage after every insert are the full scan's to the bit, over random
+    inserts (states on a coarse grid too: ties, repeats, chunks of one point), masks, actions and
+    queries, with rebuilds (every 1/16 of the width in inserts) and growth along the way."""
+    g = torch.Generator().manual_seed(seed)
+    S, A = 3, 2
+    scan, index = twins(S, A, dim, lipschitz, metric, chunk, fan, capacity=4)
+    for _ in range(70):
+        x = torch.rand(S, dim, generator=g, dtype=D) * 4 - 2
+        if grid:
+            x = x.round()
+        a = torch.randint(0, A, (S,), generator=g)
+        mu = torch.rand(S, generator=g, dtype=D) * 6 - 3
+        mask = torch.rand(S, generator=g) < 0.8
+        scan.insert(x, a, mu, mask)
+        index.insert(x, a, mu, mask)
+        assert torch.equal(scan.mu, index.mu) and torch.equal(scan.s, index.s)
+        probe = torch.rand(S, dim, generator=g, dtype=D) * 5 - 2.5
+        for at in (probe, x):
+            assert torch.equal(scan(at), index(at))
+    assert index.index.built > 0
+
+
+def test_the_index_is_exact_where_a_bound_meets_the_answer_by_rounding():
+    """Values far from 0 (mu near 1e6, states near 1e3), where the bounds and the values round
+    differently: the slack keeps every chunk that could hold the minimum."""
+    g = torch.Generator().manual_seed(5)
+    scan, index = twins(2, 1, 2, 3.0, "l2", chunk=3, fan=2)
+    for _ in range(60):
+        x = 1e3 + torch.rand(2, 2, generator=g, dtype=D) * 1e-6
+        mu = 1e6 + torch.rand(2, generator=g, dtype=D) * 1e-9
+        for q in (scan, index):
+            q.insert(x, torch.zeros(2, dtype=torch.long), mu, torch.tensor([True, True]))
+        assert torch.equal(scan(x + 1e-7), index(x + 1e-7))
+
+
+def test_an_empty_row_beside_full_ones_reads_v_max_through_the_index():
+    scan, index = twins(2, 2, 1, 1.0, "l1")
+    for k in range(12):
+        for q in (scan, index):
+            q.insert(t([[float(k)], [0.0]]), torch.tensor([0, 0]), t([float(k), 0.0]), torch.tensor([True, False]))
+    got = index(t([[3.5], [1.0]]))
+    assert torch.equal(got, scan(t([[3.5], [1.0]])))
+    assert got[0, 1] == 50.0 and got[1].eq(50.0).all()       # action 1 of seed 0, and seed 1: no pair
+
+
+def test_the_index_is_not_saved_and_a_loaded_q_answers_the_same():
+    g = torch.Generator().manual_seed(2)
+    _, index = twins(2, 2, 2, 2.0, "l1", chunk=2, fan=2)
+    for _ in range(40):
+        index.insert(torch.rand(2, 2, generator=g, dtype=D), torch.randint(0, 2, (2,), generator=g),
+                     torch.rand(2, generator=g, dtype=D), torch.tensor([True, True]))
+    probe = torch.rand(2, 2, generator=g, dtype=D)
+    want = index(probe)
+    state = index.state_dict()
+    assert set(state) == {"s", "mu", "width", "version"}
+    fresh = LipschitzQ(2, 2, 2, 2.0, 50.0, "l1", index_min=1, chunk=2, fan=2)
+    fresh.load_state_dict(state)
+    assert fresh.index.built == 0 and torch.equal(fresh(probe), want)
+
+
+def test_an_index_build_allocates_what_growth_bytes_counts():
+    """A build is due at the first query from ``index_min`` on: growth_bytes counts it then, and
+    nothing once it is built. At 40 slots in chunks of 4, groups of 3: 10 chunks padded to 12, 4
+    groups of them padded to 6, and a top of 2; the index keeps 4 bytes a sorted slot (chunks
+    padded: 40) and a chunk number a slot, and 3 dim + 2 float64s a box (12 + 6 + 2), and makes the
+    10 and 4 unpadded boxes first; beside it, a block's sort of 8 (6 dim + 8) bytes a slot."""
+    q = LipschitzQ(2, 3, 2, 1.0, 50.0, index_min=40, chunk=4, fan=3, capacity=64)
+    x = torch.arange(2 * 39 * 2, dtype=D).view(39, 2, 2)
+    for k in range(39):
+        q.insert(x[k], torch.tensor([0, 1]), t([float(k), -float(k)]), torch.tensor([True, True]))
+    assert q.width == 39
+    due = q.growth_bytes()     # the next insert reaches 40 slots and the query after it builds
+    rows, w, dim = 6, 40, 2
+    box = 8 * (3 * dim + 2)
+    kept = rows * (4 * 40 + 4 * w + box * (12 + 6 + 2))
+    assert due == kept + rows * box * (10 + 4) + rows * w * 8 * (6 * dim + 8)
+    q.insert(x[0] + 100, torch.tensor([0, 0]), t([1e3, 1e3]), torch.tensor([True, True]))
+    assert q.width == 40
+    q(x[0])
+    ix = q.index
+    assert [b.packed.shape[1] for b in ix.levels] == [12, 6, 2]
+    held = sum(v.numel() * v.element_size() for v in (ix.order, ix.chunk_of, *(b.packed for b in ix.levels)))
+    assert held == kept
+    assert q.growth_bytes() == 0
+
+
+def test_the_index_is_rebuilt_after_a_sixteenth_of_its_slots_in_inserts():
+    """Built at 32 slots, it is used as built for one insert and rebuilt at the first use after the
+    second (2 x 16 >= 32); growth_bytes counts a build from the step that may make one (one insert
+    early: a step queries, then inserts)."""
+    q = LipschitzQ(1, 1, 1, 1.0, 50.0, index_min=32, chunk=4, fan=2, capacity=64)
+    for k in range(32):
+        q.insert(t([[float(k)]]), torch.tensor([0]), t([0.0]), YES)
+    q(t([[0.5]]))
+    assert q.index.built == 32 and q.index.inserts == 0 and not q.index.due(q.width)
+    assert q.growth_bytes() == 0
+    q.insert(t([[40.0]]), torch.tensor([0]), t([0.0]), YES)
+    q(t([[0.5]]))
+    assert q.index.built == 32 and q.index.inserts == 1 and q.index.due(q.width) and q.growth_bytes() > 0
+    q.insert(t([[41.0]]), torch.tensor([0]), t([0.0]), YES)
+    assert q.index.built == 32        # pruning went through the index as built: its use is the next query
+    q(t([[0.5]]))
+    assert q.index.built == 34 and q.index.inserts == 0
+
+
+@pytest.mark.parametrize("chunk, fan", [(0, 2), (1, 1)])
+def test_a_bad_index_shape_is_refused(chunk, fan):
+    with pytest.raises(ValueError, match=f"at least 1 pair and its groups at least 2 boxes, got chunk {chunk} and fan {fan}$"):
+        LipschitzQ(1, 1, 1, 1.0, 1.0, chunk=chunk, fan=fan)
+    LipschitzQ(1, 1, 1, 1.0, 1.0, chunk=1, fan=2)
+
+
+def test_dgpq_through_the_index_runs_as_through_the_scan(monkeypatch, tmp_path):
+    """DGPQ on the square for 3 seeds x 12 episodes with the index from Q̂'s first pair on (chunks of
+    2, groups of 2) writes the same episodes as with the scan: the index only answers faster."""
+    from tests.test_run import csv, run
+    out = {}
+    for name, (index_min, chunk, fan) in {"scan": (10**9, 32, 32), "index": (1, 2, 2)}.items():
+        for attr, value in (("INDEX_MIN", index_min), ("CHUNK", chunk), ("FAN", fan)):
+            monkeypatch.setattr(qhat_module, attr, value)
+        assert run("--env", "square", "--agent", "dgpq", "--seeds", "0-2", "--episodes", 12,
+                   "--out", tmp_path / name) == 0
+        out[name] = csv(tmp_path / name)
+    assert out["scan"]["qhat_size"].max() > 20
+    pd.testing.assert_frame_equal(out["scan"], out["index"])
+
+
+def test_bench_qhat_index_times_both_ways_and_finds_the_same_values(tmp_path, capsys):
+    """``bench.py qhat-index`` on a small synthetic Q̂: the scan and the index answer alike, and the
+    share of slots the index opened is a share (in (0, 1]) that its JSON keeps."""
+    import json
+    import runpy
+    from pathlib import Path
+    bench = runpy.run_path(str(Path(__file__).resolve().parents[1] / "scripts" / "bench.py"), run_name="bench")
+    out = tmp_path / "b.json"
+    bench["main"](["qhat-index", "--widths", "3000", "--seeds", "2", "--queries", "4", "--repeats", "1",
+                   "--out", str(out)])
+    (r,) = json.loads(out.read_text())["results"]
+    assert r["same_values"] and r["width"] == 3000 and r["rows"] == 6 and 0 < r["scanned_share"] <= 1
+    assert "values the same: True" in capsys.readouterr().out
