@@ -139,18 +139,14 @@ def twins(S, A, dim, L, metric, chunk=2, fan=2, **kw):
     return scan, index
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(seed=st.integers(0, 2**31 - 1), metric=st.sampled_from(sorted(("l1", "l2", "linf"))),
-       dim=st.integers(1, 3), chunk=st.integers(1, 4), fan=st.integers(2, 3),
-       lipschitz=st.sampled_from([0.3, 1.0, 7.0]), grid=st.booleans())
-def test_the_index_gives_the_scans_values_and_prunes_the_same_pairs(seed, metric, dim, chunk, fan, lipschitz, grid):
+def check_index_against_scan(seed, metric, dim, chunk, fan, lipschitz, grid, inserts=50):
     """Eq. 7's values and the storage after every insert are the full scan's to the bit, over random
     inserts (states on a coarse grid too: ties, repeats, chunks of one point), masks, actions and
     queries, with rebuilds (every 1/16 of the width in inserts) and growth along the way."""
     g = torch.Generator().manual_seed(seed)
     S, A = 3, 2
     scan, index = twins(S, A, dim, lipschitz, metric, chunk, fan, capacity=4)
-    for _ in range(70):
+    for _ in range(inserts):
         x = torch.rand(S, dim, generator=g, dtype=D) * 4 - 2
         if grid:
             x = x.round()
@@ -164,6 +160,24 @@ def test_the_index_gives_the_scans_values_and_prunes_the_same_pairs(seed, metric
         for at in (probe, x):
             assert torch.equal(scan(at), index(at))
     assert index.index.built > 0
+
+
+CASES = dict(seed=st.integers(0, 2**31 - 1), metric=st.sampled_from(sorted(("l1", "l2", "linf"))),
+             dim=st.integers(1, 3), chunk=st.integers(1, 4), fan=st.integers(2, 3),
+             lipschitz=st.sampled_from([0.3, 1.0, 7.0]), grid=st.booleans())
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(**CASES)
+def test_the_index_gives_the_scans_values_and_prunes_the_same_pairs(**case):
+    check_index_against_scan(**case)
+
+
+@pytest.mark.slow
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(**CASES)
+def test_the_index_gives_the_scans_values_over_many_cases(**case):
+    check_index_against_scan(**case, inserts=120)
 
 
 def test_the_index_is_exact_where_a_bound_meets_the_answer_by_rounding():
