@@ -648,3 +648,11 @@ def test_a_learner_given_a_potential_learns_what_it_would_from_the_shaped_reward
         assert a.replay.written == 12 and a.updates.tolist() == [8, 8]      # updates from the 5th step
         state_a["replay"] = state_b["replay"] = None
     assert_same_state(state_a, state_b)
+
+
+def test_a_scripted_agent_stores_learns_and_saves_nothing():
+    from trl_dgpq.agents.base import ScriptedAgent
+    agent = ScriptedAgent()
+    assert ScriptedAgent.memory_bytes(None, None, 8) == 0
+    assert agent.observe(None) is None and agent.episode_stats() == {} and agent.state_dict() == {}
+    assert agent.load_state_dict({}) is None

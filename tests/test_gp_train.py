@@ -120,3 +120,55 @@ def test_a_gp_in_trouble_at_the_end_goes_back_to_its_last_good_values(monkeypatc
     assert same(params(gp, 0), seen[2][0])
     assert caplog.messages[-1] == "kernel fit: 1 GP(s) ended in trouble; kept their last good parameters"
     assert torch.isfinite(out["nll_after"]).all()
+
+
+def test_a_second_gp_failing_later_leaves_the_first_frozen(monkeypatch):
+    """GP 0 fails from the 4th call, GP 1 from the 6th (both mid-fit): each ends at its own last good
+    values, both frozen (a later failure does not thaw an earlier one)."""
+    gp = gp_with([5, 6])
+
+    def rule(call, value, ok):
+        return torch.where(torch.tensor([4 <= call <= 9, 6 <= call <= 9]), torch.nan, value), ok
+    seen = failing(gp, monkeypatch, rule)
+    out = fit(gp, steps=8, lr=0.05)
+    assert out["frozen"].tolist() == [True, True]
+    assert same(params(gp, 0), seen[2][0]) and same(params(gp, 1), seen[4][1])
+
+
+def test_a_shared_kernel_refits_a_gp_of_one_point_it_did_not_train():
+    """A shared RBF kernel trained on GP 0 (5 points) changes GP 1 (1 point, below min_points): its
+    posterior mean at 0.3 is the one-point GP's by hand, k(0.3, x1) y1 / (k(x1, x1) + s^2), with the
+    new lengthscale and outputscale."""
+    g = torch.Generator().manual_seed(3)
+    gp = ExactGP(RBFKernel(1.0, 1.0), 0.1, 1, batch_shape=(2,))
+    for k in range(5):
+        gp.add(torch.rand(2, 1, generator=g, dtype=D), torch.randn(2, generator=g, dtype=D), torch.tensor([True, k == 0]))
+    fit(gp, steps=20, lr=0.1)
+    ls, os_ = gp.kernel.lengthscale.item(), gp.kernel.outputscale.item()
+    assert abs(ls - 1.0) > 0.05
+    x1, y1, s2 = gp.X[1, 0, 0].item(), gp.Y[1, 0].item(), gp.likelihood.noise[1].item()
+    k = lambda a, b: os_ * torch.exp(torch.tensor(-0.5 * (a - b) ** 2 / ls ** 2, dtype=D))  # noqa: E731
+    mean, _ = gp.predict(torch.tensor([[[0.3]], [[0.3]]], dtype=D))
+    torch.testing.assert_close(mean[1, 0], k(0.3, x1) * y1 / (k(x1, x1) + s2), rtol=1e-9, atol=0)
+
+
+def test_a_refit_that_fails_puts_every_trained_gp_back_and_says_so(monkeypatch, caplog):
+    """If the re-factorisation after the steps fails (guarded against above, never expected), every
+    trained GP goes back to its values when the last step began and the GPs are refitted with
+    them; the warning carries the error."""
+    from trl_dgpq.gp.base import GPNumericalError
+    gp = gp_with([5, 6])
+    seen = failing(gp, monkeypatch, lambda call, value, ok: (value, ok))
+    real, calls = gp.refit, []
+
+    def refit(changed):
+        calls.append(changed.clone())
+        if len(calls) == 1:
+            raise GPNumericalError("boom")
+        return real(changed)
+    monkeypatch.setattr(gp, "refit", refit)
+    with caplog.at_level(logging.WARNING, logger="trl_dgpq.gp.train"):
+        fit(gp, steps=4, lr=0.05)
+    assert [c.tolist() for c in calls] == [[True, True], [True, True]]
+    assert same(params(gp, 0), seen[4][0]) and same(params(gp, 1), seen[4][1])
+    assert caplog.messages == ["kernel fit: re-factorisation failed (boom); restored the previous parameters"]
