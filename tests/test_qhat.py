@@ -298,3 +298,47 @@ def test_bench_qhat_index_times_both_ways_and_finds_the_same_values(tmp_path, ca
     (r,) = json.loads(out.read_text())["results"]
     assert r["same_values"] and r["width"] == 3000 and r["rows"] == 6 and 0 < r["scanned_share"] <= 1
     assert "values the same: True" in capsys.readouterr().out
+
+
+def test_the_z_order_key_interleaves_each_rows_quantised_coordinates():
+    """By hand: 16 bits a coordinate up to 3 dims (62 // dim, at most 16), 1 from 32 dims on; each
+    row quantised over its own used pairs' box; unused slots last (the largest int64)."""
+    from trl_dgpq.qhat import _zorder
+    s = t([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0], [7.0, 7.0]],
+           [[10.0, 10.0], [30.0, 10.0], [10.0, 20.0], [30.0, 20.0], [0.0, 0.0]]])
+    used = torch.tensor([[True, True, True, True, False]] * 2)
+    x_bits = sum(1 << (2 * b) for b in range(16))
+    want = [0, x_bits, x_bits << 1, (x_bits << 1) | x_bits, torch.iinfo(torch.long).max]
+    assert _zorder(s, used).tolist() == [want, want]
+    assert _zorder(t([[[0.0], [1.0]]]), torch.tensor([[True, True]])).tolist() == [[0, 2 ** 16 - 1]]
+    wide = torch.stack((torch.zeros(40, dtype=D), torch.ones(40, dtype=D)))[None]
+    assert _zorder(wide, torch.tensor([[True, True]])).tolist() == [[0, 2 ** 40 - 1]]
+
+
+def test_pruning_through_the_index_uses_l_and_prunes_at_equality():
+    """After a build: a pair in the tail (slot past the build) that a new pair bounds only with L = 1
+    is kept at L = 7; a built pair met exactly (the same state and mu again) is pruned, as the scan
+    prunes it."""
+    scan, _ = twins(1, 1, 1, 7.0, "l1", capacity=64)
+    index = LipschitzQ(1, 1, 1, 7.0, 50.0, "l1", index_min=40, chunk=2, fan=2, capacity=64)   # built at 40
+    for k in range(40):
+        for q in (scan, index):
+            q.insert(t([[float(10 + k)]]), torch.tensor([0]), t([float(k)]), YES)
+    index(t([[0.0]]))
+    built = index.index.built
+    assert built == 40 and index.index.inserts == 0      # (1, 5) goes past it, in the tail
+    for x, mu in ((1.0, 5.0), (0.0, 0.0), (13.0, 3.0)):
+        for q in (scan, index):
+            q.insert(t([[x]]), torch.tensor([0]), t([mu]), YES)
+        assert torch.equal(scan.mu, index.mu) and torch.equal(scan.s, index.s)
+    assert index.index.built == built       # no rebuild: (1, 5) stayed in the tail
+    assert index.size().item() == 42        # (13, 3) replaced itself; (1, 5) kept beside (0, 0)
+
+
+def test_growth_bytes_counts_no_build_two_slots_short_of_index_min():
+    q = LipschitzQ(1, 1, 1, 1.0, 50.0, index_min=40, chunk=4, fan=3, capacity=64)
+    for k in range(38):
+        q.insert(t([[float(k)]]), torch.tensor([0]), t([float(k)]), YES)
+    assert q.width == 38 and q.growth_bytes() == 0
+    q.insert(t([[99.0]]), torch.tensor([0]), t([99.0]), YES)
+    assert isinstance(q.growth_bytes(), int) and q.growth_bytes() > 0
