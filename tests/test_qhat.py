@@ -252,11 +252,11 @@ def test_the_index_is_rebuilt_after_a_sixteenth_of_its_slots_in_inserts():
     for k in range(32):
         q.insert(t([[float(k)]]), torch.tensor([0]), t([0.0]), YES)
     q(t([[0.5]]))
-    assert q.index.built == 32 and q.index.inserts == 0 and not q.index.due(q.width)
+    assert q.index.built == 32 and q.index.inserts == 0 and not q.index.due()
     assert q.growth_bytes() == 0
     q.insert(t([[40.0]]), torch.tensor([0]), t([0.0]), YES)
     q(t([[0.5]]))
-    assert q.index.built == 32 and q.index.inserts == 1 and q.index.due(q.width) and q.growth_bytes() > 0
+    assert q.index.built == 32 and q.index.inserts == 1 and q.index.due() and q.growth_bytes() > 0
     q.insert(t([[41.0]]), torch.tensor([0]), t([0.0]), YES)
     assert q.index.built == 32        # pruning went through the index as built: its use is the next query
     q(t([[0.5]]))

@@ -30,6 +30,12 @@ def distance(x: torch.Tensor, s: torch.Tensor, metric: str) -> torch.Tensor:
                        compute_mode="donot_use_mm_for_euclid_dist")[:, 0]
 
 
+def values(x: torch.Tensor, s: torch.Tensor, mu: torch.Tensor, lipschitz: float, metric: str) -> torch.Tensor:
+    """mu_j + L d(x_b, s_bj), (B, n): Eq. 7's terms and pruning's test, one arithmetic for the scan
+    and the index (so that the index's values are the scan's to the bit)."""
+    return torch.add(mu, distance(x, s, metric), alpha=lipschitz)
+
+
 class LipschitzQ:
     """Q̂ for S seeds and A actions over ``dim``-dimensional states."""
 
@@ -72,10 +78,9 @@ class LipschitzQ:
         """Q̂_a(x) for every action: x ``(S, dim)`` -> ``(S, A)``."""
         if self.width == 0:
             return x.new_full((self.S, self.A), self.v_max)
+        xs = x[:, None, :].expand(self.S, self.A, self.dim).reshape(self.S * self.A, self.dim)
         if self.width >= self.index_min:
-            s, mu = self._rows()
-            xs = x[:, None, :].expand(self.S, self.A, self.dim).reshape(self.S * self.A, self.dim)
-            return self.index.envelope(xs, s, mu, self.width).view(self.S, self.A).clamp_max(self.v_max)
+            return self.index.envelope(xs, *self._rows(), self.width).view(self.S, self.A).clamp_max(self.v_max)
         # One cdist over the (S*A) rows of stored states; the reduction then runs over
         # the contiguous last dim. cdist copies a sliced (strided) input, so a mostly
         # used storage (over 3/4) is passed whole: unused slots have mu = +inf and drop
@@ -83,14 +88,13 @@ class LipschitzQ:
         # S = 64, A = 4, scanning a just-doubled storage cost 3-5x the sliced [:width],
         # and the threshold of 1/2 this replaces made time per step jump at each doubling.
         w = self.capacity if 4 * self.width > 3 * self.capacity else self.width
-        s = self.s.view(self.S * self.A, self.capacity, self.dim)[:, :w]
-        xs = x[:, None, :].expand(self.S, self.A, self.dim).reshape(self.S * self.A, self.dim)
-        d = distance(xs, s, self.metric).view(self.S, self.A, w)
-        return torch.add(self.mu[..., :w], d, alpha=self.lipschitz).amin(-1).clamp_max(self.v_max)
+        s, mu = self._rows()
+        return values(xs, s[:, :w], mu[:, :w], self.lipschitz, self.metric).amin(-1).view(self.S, self.A) \
+            .clamp_max(self.v_max)
 
     def bound(self, x: torch.Tensor, s: torch.Tensor, mu: torch.Tensor) -> torch.Tensor:
         """mu + L d(x, s) for one pair per seed: x, s ``(S, dim)``, mu ``(S,)``."""
-        return torch.add(mu, distance(x, s[:, None, :], self.metric)[:, 0], alpha=self.lipschitz)
+        return values(x, s[:, None, :], mu[:, None], self.lipschitz, self.metric)[:, 0]
 
     def insert(self, x: torch.Tensor, a: torch.Tensor, mu: torch.Tensor, mask: torch.Tensor) -> None:
         """Insert (x, mu) into Q̂_a for the seeds in ``mask`` and prune, per action, every
@@ -105,7 +109,7 @@ class LipschitzQ:
             self.index.prune(x, rows * self.A + a, mu, *self._rows(), w)
         elif w:
             s_a, mu_a = self.s[:, :, :w][rows, a], self.mu[:, :, :w][rows, a]
-            redundant = torch.add(mu[:, None], distance(x, s_a, self.metric), alpha=self.lipschitz) <= mu_a
+            redundant = values(x, s_a, mu[:, None], self.lipschitz, self.metric) <= mu_a
             self.mu[:, :, :w][rows, a] = mu_a.masked_fill(redundant, torch.inf)
         if w == self.capacity and not torch.isinf(self.mu[rows, a]).any(-1).all():
             self._grow()
@@ -126,7 +130,7 @@ class LipschitzQ:
         grow = 0
         if self.width == self.capacity:
             grow = 2 * (self.s.numel() * self.s.element_size() + self.mu.numel() * self.mu.element_size())
-        if self.width + 1 < self.index_min or not self.index.due(self.width):
+        if self.width + 1 < self.index_min or not self.index.due():
             return grow
         return grow + self.index.build_bytes(self.S * self.A, self.width + 1, self.dim)
 
@@ -236,14 +240,15 @@ class ChunkIndex:
     """An exact index over Q̂'s rows for Eq. 7's minimum and an insert's pruning.
 
     At a build, each row's pairs in slots [0, built) are sorted in Z-order and cut into chunks of
-    ``CHUNK``, and the chunks into groups of ``FAN``, each with the bounding box of its pairs' states
-    and the least and the largest of their mu; slots from ``built`` on (the tail) are scanned. For
-    x, a box's pairs are all at least ``least + L d(x, box)`` and one is at most ``least + L d(x, far
-    corner)``; only the groups, then the chunks, whose lower bound reaches the smallest upper bound
-    found are opened, and the chunks' pairs go through the same arithmetic as a full scan, so the
-    minimum is the full scan's to the bit. Pruning opens the boxes whose largest mu an insert can
-    reach. An insert into a built slot widens its chunk's and group's boxes and ranges; pruning
-    leaves them wide (still bounds); after ``built / STALE`` inserts the index is built again.
+    ``CHUNK``, and the chunks merged ``FAN`` at a time level over level, each box with the bounding
+    box of its pairs' states, the least and the largest of their mu and the state of the least (its
+    rep); slots from ``built`` on (the tail) are scanned. For x, a box's pairs are all at least
+    ``least + L d(x, box)``, and its rep's value ``least + L d(x, rep)`` bounds Eq. 7 from above; from
+    the top, only the boxes whose lower bound reaches the smallest upper bound found are opened, and
+    the chunks' pairs go through the scan's arithmetic (``values``), so the minimum is the scan's to
+    the bit. Pruning opens the boxes whose largest mu an insert can reach. An insert into a built
+    slot widens its boxes at every level; pruning leaves them wide (still bounds); after
+    ``built / STALE`` inserts the index is built again.
     """
 
     def __init__(self, lipschitz: float, metric: str, chunk: int = CHUNK, fan: int = FAN):
@@ -290,8 +295,8 @@ class ChunkIndex:
             self.levels.append(self.levels[-1].merged(self.fan))
         self.built, self.inserts = w, 0
 
-    def due(self, width: int) -> bool:
-        """Whether the next query or insert at ``width`` builds the index."""
+    def due(self) -> bool:
+        """Whether the next step (a query, then an insert) may build the index."""
         return self.built == 0 or (self.inserts + 1) * STALE >= self.built
 
     def build_bytes(self, rows: int, width: int, dim: int) -> int:
@@ -330,7 +335,7 @@ class ChunkIndex:
         """min_j mu_j + L d(x_r, s_rj) of each row r (+inf for a row with no pair): x (rows, dim)."""
         self._refresh(s, mu, w)
         L, rows = self.lipschitz, s.shape[0]
-        upper = (torch.add(mu[:, self.built:w], distance(x, s[:, self.built:w], self.metric), alpha=L).amin(-1)
+        upper = (values(x, s[:, self.built:w], mu[:, self.built:w], L, self.metric).amin(-1)
                  if w > self.built else x.new_full((rows,), torch.inf))
         tail = upper
         r = torch.arange(rows, device=s.device)
@@ -342,8 +347,7 @@ class ChunkIndex:
             if level:
                 at, boxes = self._open(level, r, at)
         pts, m, _ = self._pairs(s, mu, r[:, None], _take(self.order, r, at))
-        values = torch.add(m, distance(x[r], pts, self.metric), alpha=L).amin(1)
-        return tail.scatter_reduce(0, r, values, "amin")
+        return tail.scatter_reduce(0, r, values(x[r], pts, m, L, self.metric).amin(1), "amin")
 
     def _reach(self, least, near, upper):
         """Which boxes' lower bound (least + L d(x, box)) reaches ``upper``, with slack for rounding
@@ -368,7 +372,7 @@ class ChunkIndex:
         L = self.lipschitz
         if w > self.built:
             st, mt = s[rows, self.built:w], mu[rows, self.built:w]
-            redundant = torch.add(new_mu[:, None], distance(x, st, self.metric), alpha=L) <= mt
+            redundant = values(x, st, new_mu[:, None], L, self.metric) <= mt
             mu[rows, self.built:w] = mt.masked_fill(redundant, torch.inf)
         i = torch.arange(len(rows), device=x.device)
         at, boxes = self._top(rows)
@@ -380,7 +384,7 @@ class ChunkIndex:
         r = rows[i]
         slots = _take(self.order, r, at)
         pts, m, used = self._pairs(s, mu, r[:, None], slots)
-        redundant = (torch.add(new_mu[i, None], distance(x[i], pts, self.metric), alpha=L) <= m) & used
+        redundant = (values(x[i], pts, new_mu[i, None], L, self.metric) <= m) & used
         mu[r[:, None].expand_as(slots)[redundant], slots[redundant].long()] = torch.inf
 
     def inserted(self, rows: torch.Tensor, slots: torch.Tensor, x: torch.Tensor, mu: torch.Tensor) -> None:
