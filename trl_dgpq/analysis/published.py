@@ -82,10 +82,12 @@ def recorded_config(folder, name: str) -> dict:
     return json.loads((Path(folder) / DATA / f"{name}.json").read_text())
 
 
-def load(folder, name: str) -> Run:
-    """A published experiment as ``load_run`` gives a run folder's (``Run.path``: where its data lie)."""
+def load(folder, name: str, columns=None) -> Run:
+    """A published experiment as ``load_run`` gives a run folder's (``Run.path``: where its data lie);
+    with ``columns``, only those (and seed, episode, steps) read."""
     data = Path(folder) / DATA
-    df = read_csv_exact(data / f"{name}.csv.xz").sort_values(["seed", "episode"], kind="stable")
+    keep = None if columns is None else {"seed", "episode", "steps", *columns}
+    df = read_csv_exact(data / f"{name}.csv.xz", keep).sort_values(["seed", "episode"], kind="stable")
     df["env_steps"] = df.groupby("seed")["steps"].cumsum()
     return Run(data / name, df.reset_index(drop=True), recorded_config(folder, name))
 

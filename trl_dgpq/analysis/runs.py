@@ -15,15 +15,18 @@ class UnreadableCSV(ValueError):
     """A run's CSV that cannot be parsed (cut, corrupted): one line naming the file."""
 
 
-def read_csv_exact(path) -> pd.DataFrame:
+def read_csv_exact(path, columns=None) -> pd.DataFrame:
     """read_csv that gives back exactly the floats written (pandas >= 3 does by default;
     older pandas needs the round-trip parser). Every command reads runs through it, so a
-    file that cannot be parsed is named here (pandas' message names only a line)."""
+    file that cannot be parsed is named here (pandas' message names only a line).
+    ``columns``: only those of them the file has (the others are not parsed)."""
     exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
     if str(path).endswith(".csv") and ends_mid_row(path):
         raise UnreadableCSV(f"cannot read {path}: it ends mid-row (the run was stopped while writing it, or the "
                             "file was cut); resume the run (train --resume) to cut it back to its last checkpoint")
     try:
+        if columns is not None:
+            exact["usecols"] = set(columns).__contains__
         return pd.read_csv(path, **exact)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
         raise UnreadableCSV(f"cannot read {path}: {str(err).strip().splitlines()[0]}") from None

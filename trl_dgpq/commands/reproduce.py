@@ -390,7 +390,7 @@ def estimate(planned: dict, publication: Path) -> list:
 
     @cache
     def rows_of(name: str):   # the rows of the experiments chosen (or tied), each read once
-        df = published.load(publication, name).df
+        df = published.load(publication, name, columns=("cpu_s", "wall_s")).df
         return df[["episode", "steps"]].assign(spent=spent_seconds(df))
     out = []
     for name, config in planned.items():
