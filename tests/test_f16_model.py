@@ -2,6 +2,7 @@
 claims' measures on runs whose values are known, and its section."""
 import re
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -65,12 +66,15 @@ def test_every_learner_meets_every_potential_with_its_formulations_settings(plan
 def runs_with(planned, value, trend: float = 0.0, episodes: int = 100) -> dict:
     """Every planned experiment on seeds 30-49, each seed's return ``value(name, seed)`` plus ``trend``
     per episode for the learners (the scripted references do not learn)."""
-    out = {}
+    out, episode = {}, np.arange(1, episodes + 1)
     for name, config in planned.items():
         slope = 0.0 if name.endswith(("nothing", "pd")) else trend
-        rows = [dict(seed=s, episode=e, steps=20, wall_s=0.01, terminated=False, **{"return": value(name, s) + slope * e})
-                for s in config["run"]["seeds"] for e in range(1, episodes + 1)]
-        out[name] = Run(None, pd.DataFrame(rows), config)
+        seeds = np.asarray(config["run"]["seeds"])
+        start = np.array([value(name, s) for s in seeds])          # (a row at a time took 13 s of the file's)
+        df = pd.DataFrame({"seed": np.repeat(seeds, episodes), "episode": np.tile(episode, len(seeds)), "steps": 20,
+                           "wall_s": 0.01, "terminated": False,
+                           "return": np.repeat(start, episodes) + slope * np.tile(episode, len(seeds))})
+        out[name] = Run(None, df, config)
     return out
 
 
