@@ -68,6 +68,19 @@ def test_a_study_keeps_scoring_the_column_it_began_on(tmp_path):
     assert same.objective == base.objective and same.objective.column == "cost_ratio"
 
 
+def test_a_setting_is_read_as_the_study_resolved_it_and_no_preset_is_written_without_a_complete_trial(
+        tmp_path, monkeypatch):
+    from trl_dgpq import presets
+    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+    study = open_study(tmp_path, {"reward": "paper", "gamma": "0.5"})
+    assert study.value_of("env", "reward") == "paper" and study.value_of("agent", "gamma") == 0.5
+    assert study.value_of("agent", "gp.noise_var") == study.config["agent"]["gp"]["noise_var"]
+    with pytest.raises(ValueError) as err:
+        study.write_preset("mine")
+    assert str(err.value) == "no trial has completed: there is no best trial to write as a preset"
+    assert not (tmp_path / "tuned.json").exists()
+
+
 class Queue:
     def __init__(self, n):
         self.left, self.ran = list(range(n)), []

@@ -716,7 +716,7 @@ def test_a_study_never_replaces_another_studys_preset_unless_forced(tmp_path, mo
     prov = json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]["tuned"]["provenance"]
     assert exc.value.code == 2 and ("would replace preset 'tuned' of dqn on square, written by study 'first' "
                                     f"({prov['trials']} trials on seeds {prov['seeds']}, {prov['date']})") in err
-    assert "--force" in err
+    assert err.strip().endswith(": write it under another name (--write-preset NAME), or add --force to replace it")
     # a provenance without its counts (written by hand): each said unknown
     data = json.loads((tmp_path / "tuned.json").read_text())
     data["square"]["dqn"]["tuned"]["provenance"] = {"study_name": "by-hand"}
