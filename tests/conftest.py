@@ -49,6 +49,19 @@ def script_entry(monkeypatch):
     monkeypatch.setattr(trl_dgpq.commands, "ENTRY", None)
 
 
+@pytest.fixture(autouse=True)
+def log_levels_put_back():
+    """Commands quiet Optuna's and TorchRL's loggers for their own lines; each test's are put back
+    after it, so what a later test's libraries print does not depend on which tests ran before."""
+    import logging
+
+    import optuna
+    verbosity, torchrl = optuna.logging.get_verbosity(), logging.getLogger("torchrl").level
+    yield
+    optuna.logging.set_verbosity(verbosity)
+    logging.getLogger("torchrl").setLevel(torchrl)
+
+
 def through_disk(state):
     """What a checkpoint does to a state: torch.save, then torch.load(weights_only=True)."""
     buf = io.BytesIO()

@@ -70,7 +70,7 @@ def runs_with(planned, value, trend: float = 0.0, episodes: int = 100) -> dict:
     for name, config in planned.items():
         slope = 0.0 if name.endswith(("nothing", "pd")) else trend
         seeds = np.asarray(config["run"]["seeds"])
-        start = np.array([value(name, s) for s in seeds])          # (a row at a time took 13 s of the file's)
+        start = np.array([value(name, s) for s in seeds])          # (a row at a time: 13 s of the file's 30 s)
         df = pd.DataFrame({"seed": np.repeat(seeds, episodes), "episode": np.tile(episode, len(seeds)), "steps": 20,
                            "wall_s": 0.01, "terminated": False,
                            "return": np.repeat(start, episodes) + slope * np.tile(episode, len(seeds))})

@@ -1,5 +1,6 @@
 """analysis/runs.py by hand: a run's CSV read back exactly or refused in one line, a folder loaded
 with its seeds' cumulative steps, and what a Run says of itself."""
+import io
 import json
 
 import pandas as pd
@@ -18,6 +19,13 @@ def test_floats_come_back_exactly_and_columns_can_be_left_unparsed(tmp_path):
     assert df["return"].tolist()[1] == -0.30000000000000004 and df["return"].tolist()[1] != -0.3
     only = read_csv_exact(path, columns=("seed", "return", "absent"))
     assert list(only.columns) == ["seed", "return"] and only["return"].tolist()[1] == -0.30000000000000004
+    with pytest.raises(TypeError, match="got the text 'seed'"):
+        read_csv_exact(path, columns="seed")
+    ragged = tmp_path / "ragged.csv"
+    ragged.write_text(ROWS + "1,3,1,0.5,0.5,9\n")
+    with pytest.raises(UnreadableCSV):
+        read_csv_exact(ragged)
+    assert len(read_csv_exact(ragged, columns=("seed",))) == 5        # as its docstring says: not counted
 
 
 def test_a_file_cut_mid_row_or_unparseable_is_refused_naming_it(tmp_path):
@@ -49,7 +57,7 @@ def test_a_file_cut_mid_row_or_unparseable_is_refused_naming_it(tmp_path):
 
 def test_a_compressed_file_is_not_checked_for_a_cut_row(tmp_path):
     path = tmp_path / "e.csv.xz"
-    pd.read_csv(pd.io.common.StringIO(ROWS)).to_csv(path, index=False)
+    pd.read_csv(io.StringIO(ROWS)).to_csv(path, index=False)
     assert read_csv_exact(path)["steps"].tolist() == [5, 3, 4, 2]
 
 

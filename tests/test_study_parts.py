@@ -14,6 +14,13 @@ SQUARE = {"env": "square", "agent": "dgpq", "episodes": "4", "seeds": "1000-1001
 DGPQ_SPACE = ["eps1", "lengthscale", "lipschitz", "noise_var", "sigma_tol2"]
 
 
+@pytest.fixture(autouse=True)
+def own_tuned_file(tmp_path, monkeypatch):
+    """The studies here read and write a tuned.json of the test's own, never the checkout's."""
+    from trl_dgpq import presets
+    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+
+
 def open_study(tmp_path, given=None, tune=None, name="s"):
     return Study.open(tmp_path / name, None, {**SQUARE, **(given or {})}, tune or {})
 
@@ -69,9 +76,7 @@ def test_a_study_keeps_scoring_the_column_it_began_on(tmp_path):
 
 
 def test_a_setting_is_read_as_the_study_resolved_it_and_no_preset_is_written_without_a_complete_trial(
-        tmp_path, monkeypatch):
-    from trl_dgpq import presets
-    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+        tmp_path):
     study = open_study(tmp_path, {"reward": "paper", "gamma": "0.5"})
     assert study.value_of("env", "reward") == "paper" and study.value_of("agent", "gamma") == 0.5
     assert study.value_of("agent", "gp.noise_var") == study.config["agent"]["gp"]["noise_var"]
@@ -106,16 +111,19 @@ def test_work_runs_trials_until_the_study_is_full(monkeypatch):
 
 def test_a_worker_prints_its_lines_and_exits_128_plus_the_signal(monkeypatch, capsys):
     made = []
+
+    def one_line_and_a_trial(study, trials, stop, log):
+        log(f"{trials} {stop['signum']}")
+        study.run(0, stop, log)
     monkeypatch.setattr(study_module, "Study", lambda out, url, request: made.append((out, url, request)) or Queue(2))
-    monkeypatch.setattr(study_module, "work", lambda study, trials, stop, log: [log(f"{trials} {stop['signum']}"),
-                                                                                  study.run(0, stop, log)])
+    monkeypatch.setattr(study_module, "work", one_line_and_a_trial)
     assert worker("out", "url", {"r": 1}, 7) is None
     assert made == [("out", "url", {"r": 1})] and capsys.readouterr().out == "7 None\nran 0\n"
     printed = []                                   # each line flushed: a parent reads a worker's pipe as it goes
-    monkeypatch.setattr(study_module, "print", lambda *a, **k: printed.append((a, k)), raising=False)
-    worker("out", "url", {}, 7)
+    with monkeypatch.context() as mp:
+        mp.setattr(study_module, "print", lambda *a, **k: printed.append((a, k)), raising=False)
+        worker("out", "url", {}, 7)
     assert printed == [(("7 None",), {"flush": True}), (("ran 0",), {"flush": True})]
-    monkeypatch.delattr(study_module, "print")
 
     def stopped(study, trials, stop, log):
         raise Stopped(signal.SIGTERM)

@@ -16,7 +16,6 @@ from trl_dgpq.study.config import HOST
 from trl_dgpq.study.signals import Stopped
 from trl_dgpq.study.trials import Trials
 
-optuna.logging.set_verbosity(optuna.logging.WARNING)
 
 
 class Book(Trials):
