@@ -62,6 +62,15 @@ def log_levels_put_back():
     logging.getLogger("torchrl").setLevel(torchrl)
 
 
+@pytest.fixture
+def own_tuned_file(tmp_path, monkeypatch):
+    """Presets read and written in a tuned.json of the test's own (tmp_path), never the checkout's."""
+    from trl_dgpq import presets
+    path = tmp_path / "tuned.json"
+    monkeypatch.setattr(presets, "tuned_file", lambda env: path)
+    return path
+
+
 def through_disk(state):
     """What a checkpoint does to a state: torch.save, then torch.load(weights_only=True)."""
     buf = io.BytesIO()

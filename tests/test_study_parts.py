@@ -14,11 +14,7 @@ SQUARE = {"env": "square", "agent": "dgpq", "episodes": "4", "seeds": "1000-1001
 DGPQ_SPACE = ["eps1", "lengthscale", "lipschitz", "noise_var", "sigma_tol2"]
 
 
-@pytest.fixture(autouse=True)
-def own_tuned_file(tmp_path, monkeypatch):
-    """The studies here read and write a tuned.json of the test's own, never the checkout's."""
-    from trl_dgpq import presets
-    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+pytestmark = pytest.mark.usefixtures("own_tuned_file")   # never the checkout's tuned.json
 
 
 def open_study(tmp_path, given=None, tune=None, name="s"):

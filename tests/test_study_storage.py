@@ -17,11 +17,7 @@ ROOT = Path(trl_dgpq.__file__).resolve().parent.parent     # the checkout (or th
 SQUARE = {"env": "square", "agent": "dqn", "episodes": "4"}
 
 
-@pytest.fixture(autouse=True)
-def own_tuned_file(tmp_path, monkeypatch):
-    """The studies here read a tuned.json of the test's own, never the checkout's."""
-    from trl_dgpq import presets
-    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
+pytestmark = pytest.mark.usefixtures("own_tuned_file")   # never the checkout's tuned.json
 
 
 def test_a_studys_storage_is_its_folders_sqlite_file_unless_given(tmp_path):
