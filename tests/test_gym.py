@@ -202,15 +202,22 @@ def test_unusable_ids_are_refused_in_one_line(name, message, capsys):
     assert message.split(";")[0] in err.strip().splitlines()[-1]
 
 
-def test_the_old_block_push_id_says_what_it_is_now():
+def test_the_old_block_push_id_says_what_it_is_now(monkeypatch, capsys):
     """Before issue 17, importing the suite registered trl_dgpq/BlockPush-v0; now gymnasium's
-    "module:id" form does, and the old name says so (in a fresh process: here the adapter is
-    already imported)."""
-    from trl_dgpq.envs.gym.env import PUSH_GYM_ID
+    "module:id" form does, and the old name says so. (Here the adapter is already imported, so its
+    registration is taken away; test_domains' fresh process shows importing the suite makes none.)"""
+    from trl_dgpq.commands.train import main
+    from trl_dgpq.envs.gym.env import PUSH_GYM_ID, describe
     assert PUSH_GYM_ID == GYM_ID
-    proc = subprocess.run([sys.executable, str(TRAIN), "--env", "gym:trl_dgpq/BlockPush-v0", "--no-progress"],
-                          capture_output=True, text=True)
-    assert proc.returncode == 2 and f"the block-push id is now gym:{GYM_ID}" in proc.stderr.strip().splitlines()[-1]
+    monkeypatch.delitem(gymnasium.registry, "trl_dgpq/BlockPush-v0", raising=False)
+    describe.cache_clear()
+    try:
+        with pytest.raises(SystemExit) as stop:
+            main(["--env", "gym:trl_dgpq/BlockPush-v0", "--no-progress"])
+    finally:
+        describe.cache_clear()
+    assert stop.value.code == 2
+    assert f"the block-push id is now gym:{GYM_ID}" in capsys.readouterr().err.strip().splitlines()[-1]
 
 
 @pytest.mark.filterwarnings("ignore:.*out of date")
