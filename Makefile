@@ -25,8 +25,10 @@ run: $(BASE)
 	$(BIN)/python scripts/plot.py
 	@echo "next: . $(VENV)/bin/activate (then python scripts/train.py --help, or trl-dgpq --help), or call $(BIN)/python directly"
 
-# pytest-xdist: on this 2-core machine, quiet, 118 s against 188 s in one process (issue 30).
-PYTEST := $(BIN)/python -m pytest -n auto --maxprocesses 4
+# pytest-xdist: on this 2-core machine, quiet, 118 s against 188 s in one process (issue 30);
+# worksteal: an idle worker takes tests queued on the other, so two long tests left at the end of
+# one worker's share do not keep it running alone.
+PYTEST := $(BIN)/python -m pytest -n auto --maxprocesses 4 --dist worksteal
 
 test: $(STAMP)
 	$(PYTEST)
