@@ -110,6 +110,7 @@ class ACModel:
         that sells every share, by the sums (not the closed forms)."""
         n = torch.as_tensor(trades, dtype=torch.float64)
         x = n.sum() - n.cumsum(0)
-        e = (self.eps * (n > 0) * n).sum() + 0.5 * self.gamma * n.sum() ** 2 + self.eta_tilde / self.tau * (n * n).sum()
+        # the spread on what is sold: eps max(n, 0) (eps times a bool mask would be a float32 tensor)
+        e = self.eps * n.clamp(min=0.0).sum() + 0.5 * self.gamma * n.sum() ** 2 + self.eta_tilde / self.tau * (n * n).sum()
         v = self.sigma2 * self.tau * (x * x).sum()
         return dict(expected_shortfall=float(e), variance=float(v), utility=float(e + self.lam * v))
