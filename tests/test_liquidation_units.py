@@ -155,6 +155,18 @@ def test_the_log_returns_are_each_trades_price_move_newest_last():
     assert td["observation"][0, :6].tolist() == pytest.approx([0.0] * 4 + moves, rel=1e-12)
 
 
+def test_the_last_trades_return_moves_the_price_by_the_last_draw():
+    env = LiquidationEnv([3], trades=2, horizon=2.0, shares=1000)
+    td = env.reset()
+    m, xi = env.model, env.xi[0].tolist()
+    step = math.sqrt(m.sigma2 * m.tau)
+    first = 50.0 + step * xi[0] - m.gamma * 500
+    td = env.step_mdp(env.step(td.set("action", torch.tensor([[0.5]], dtype=D))))
+    out = env.step(td.set("action", torch.tensor([[1.0]], dtype=D)))["next"]
+    assert out["observation"][0, 4:6].tolist() == pytest.approx(
+        [math.log(first / 50.0), math.log((first + step * xi[1] - m.gamma * 500) / first)], rel=1e-12)
+
+
 def test_the_price_paths_cost_where_tau_is_not_one():
     """Two trades over 5 days (tau 2.5): the second trade at S_0 + sigma sqrt(tau) xi_1 - gamma n_1."""
     env = LiquidationEnv(seeds=[0], trades=2, horizon=5.0, shares=1000)
@@ -172,6 +184,8 @@ def test_the_schedules_last_trade_sells_what_is_left():
     env = LiquidationEnv([0], trades=3, shares=1000)
     assert env._schedule_trades(torch.zeros(3, dtype=D)).tolist() == [0.0, 0.0, 1000.0]
     assert env._schedule_trades(torch.tensor([0.25, 0.5, 0.0], dtype=D)).tolist() == [250.0, 375.0, 375.0]
+    odd = LiquidationEnv([0], trades=2, horizon=2.0, shares=2 ** 24 + 1)             # not a float32 number
+    assert odd._schedule_trades(torch.zeros(2, dtype=D)).tolist() == [0.0, 2 ** 24 + 1]
 
 
 def test_a_mid_episode_state_keeps_its_noise_free_cost():
