@@ -17,7 +17,6 @@ from trl_dgpq.study.signals import Stopped
 from trl_dgpq.study.trials import Trials
 
 
-
 class Book(Trials):
     """Trials over one in-memory study (the Study's storage, lock and folder, stubbed)."""
 

@@ -395,10 +395,10 @@ def test_median_pruner_stops_a_trial_below_the_median(tmp_path, monkeypatch):
     assert load_run(folder).df.episode.max() == 1 and sorted(p.name for p in folder.iterdir()) == sorted(KEEP)
 
 
-def test_each_base_preset_keeps_its_own_tuned_preset(tmp_path, monkeypatch):
+@pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
+def test_each_base_preset_keeps_its_own_tuned_preset():
     """The square's default is "shaped": a study on it writes "tuned", one on "noisy" writes
     "noisy-tuned", and neither replaces the other."""
-    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
     assert presets.tuned_name("square", "shaped") == "tuned" and presets.tuned_name("square", "noisy") == "noisy-tuned"
     presets.write_tuned("square", "dqn", "tuned", {"env": {}, "agent": {"lr": 0.002}}, {})
     presets.write_tuned("square", "dqn", "noisy-tuned", {"env": {"reward_noise": 0.1}, "agent": {"lr": 0.004}}, {})
@@ -409,10 +409,10 @@ def test_each_base_preset_keeps_its_own_tuned_preset(tmp_path, monkeypatch):
     assert "shaped" in presets.preset_table("square", "dqn")  # the domain's own presets stay
 
 
-def test_the_best_trial_round_trips_as_the_tuned_preset(tmp_path, monkeypatch):
+@pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
+def test_the_best_trial_round_trips_as_the_tuned_preset(tmp_path):
     """--write-preset: the base preset the study ran on (its env section too), the settings given
     to it, the best trial's over them; resolve_config(preset="tuned") gives them back."""
-    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
     out = tmp_path / "study"
     study = Study.open(out, None, {"env": "square", "agent": "dqn", "preset": "noisy", "episodes": "4",
                                    "gamma": "0.8"}, {"first": "sampled", "window": 7})
@@ -432,10 +432,10 @@ def test_the_best_trial_round_trips_as_the_tuned_preset(tmp_path, monkeypatch):
     assert {"date", "commit", "budget", "trials", "objective"} <= set(provenance) and provenance["window"] == 7
 
 
-def test_a_study_writes_its_preset_under_the_name_given_and_never_over_a_hand_set_one(tmp_path, monkeypatch, capsys):
+@pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
+def test_a_study_writes_its_preset_under_the_name_given_and_never_over_a_hand_set_one(tmp_path, capsys):
     """--write-preset NAME: the preset goes in under NAME (the default 'tuned' untouched); a name
     of the domain's own presets.py, or not a plain name, is refused in one line before writing."""
-    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
     out = tmp_path / "study"
     study = Study.open(out, None, {"env": "square", "agent": "dqn", "episodes": "4"}, {})
     study.load().add_trial(optuna.trial.create_trial(value=7.0, user_attrs={"settings": {"lr": 0.004}}))
@@ -470,7 +470,8 @@ def test_a_search_range_is_name_low_high_log_uniform():
         with_ranges(space, ["gamma=0.5:0.9"])
 
 
-def test_a_study_searches_the_ranges_given_and_keeps_them(tmp_path, capsys, monkeypatch):
+@pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
+def test_a_study_searches_the_ranges_given_and_keeps_them(tmp_path, capsys):
     out = str(tmp_path / "study")
     args = [*TINY, "--episodes", "2", "--out", out, "--search", "lengthscale=5:6,eps1=0.5:0.6"]
     assert tune.main([*args, "--trials", "2"]) == 0
@@ -480,7 +481,6 @@ def test_a_study_searches_the_ranges_given_and_keeps_them(tmp_path, capsys, monk
     with pytest.raises(SystemExit) as exc:                                   # another range: another study
         tune.main(["--out", out, "--trials", "3", "--search", "lengthscale=1:2"])
     assert exc.value.code == 2 and "keeps its search" in capsys.readouterr().err
-    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
     assert tune.main(["--out", out, "--trials", "2", "--write-preset"]) == 0
     provenance = json.loads((tmp_path / "tuned.json").read_text())["square"]["dgpq"]["tuned"]["provenance"]
     assert provenance["search"] == ["lengthscale=5:6", "eps1=0.5:0.6"]
@@ -646,10 +646,10 @@ def test_bad_validation_seeds_are_refused_before_any_trial(tmp_path, capsys):
     assert "--validate must be >= 0" in capsys.readouterr().err and not (tmp_path / "other").exists()
 
 
-def test_a_validated_study_writes_the_best_trial_on_the_validation_seeds(tmp_path, monkeypatch):
+@pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
+def test_a_validated_study_writes_the_best_trial_on_the_validation_seeds(tmp_path):
     """Trial 0 is best on the tuning seeds (10 < 20), trial 1 on the validation seeds (30 < 40):
     the preset is trial 1's, and its provenance says so."""
-    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
     study = Study.open(tmp_path / "study", None, {"env": "square", "agent": "dqn", "episodes": "4"},
                        {"first": "sampled"})
     for value, lr in [(10.0, 0.0002), (20.0, 0.003)]:
@@ -665,12 +665,12 @@ def test_a_validated_study_writes_the_best_trial_on_the_validation_seeds(tmp_pat
     assert entry["provenance"]["validation"] == {"seeds": [1005, 1006], "value": 30.0, "trials": [0, 1]}
 
 
+@pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
 def test_a_finished_study_asked_again_keeps_its_preset_as_first_written(tmp_path, monkeypatch):
     """Writing the same preset again (a finished study's command run once more) leaves the entry as it
     was, its date and commit those of the first writing, not of the later checkout; a new best
     trial rewrites it, with a new date. The date and commit are stubbed so the two differ."""
     from trl_dgpq.collectors import runner
-    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
     commits = iter(["a" * 40, "b" * 40, "c" * 40])
     monkeypatch.setattr(runner, "provenance", lambda: {"git": {"commit": next(commits)}})
     study = Study.open(tmp_path / "study", None, {"env": "square", "agent": "dqn", "episodes": "4"}, {})
@@ -699,10 +699,10 @@ def test_a_finished_study_asked_again_keeps_its_preset_as_first_written(tmp_path
         other.write_preset()                                                  # not forced by default
 
 
-def test_a_study_never_replaces_another_studys_preset_unless_forced(tmp_path, monkeypatch, capsys):
+@pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
+def test_a_study_never_replaces_another_studys_preset_unless_forced(tmp_path, capsys):
     """A 1-trial study writing 'tuned' over a preset another study wrote is refused, naming what it
     would replace; --force replaces it and says what went; the same study may rewrite its own."""
-    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
     first = Study.open(tmp_path / "first", None, {"env": "square", "agent": "dqn", "episodes": "4"}, {})
     first.load().add_trial(optuna.trial.create_trial(value=7.0, user_attrs={"settings": {"lr": 0.004}}))
     first.write_preset()
@@ -761,14 +761,14 @@ def f16_study(tmp_path, objective):
 @pytest.mark.parametrize("objective, direction, better, best, lipschitz, validated", [
     ("measure", "maximize", "higher", 1, 2.0, (2, 3.0)),     # 9 is the highest; on validation 8 > 6 > 4
     ("report", "minimize", "lower", 3, 4.0, (1, 2.0))])      # 3 is the lowest; on validation 4 < 6 < 8
-def test_a_maximised_objective_calls_the_highest_trial_best(tmp_path, monkeypatch, objective, direction, better,
+@pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
+def test_a_maximised_objective_calls_the_highest_trial_best(tmp_path, objective, direction, better,
                                                              best, lipschitz, validated):
     """F-16's measure is the episode reward: a study on it maximises (Optuna's direction), its
     summary and --write-preset take the trial of the highest value (9, trial 1), and among
     validated trials the highest there (8, trial 2); the same trials scored by steps to the
     threshold take the lowest (3, trial 3; validated: 4, trial 1). A study that minimised a
     return would write its worst trial."""
-    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
     study = f16_study(tmp_path, objective)
     assert study.load().direction == optuna.study.StudyDirection[direction.upper()]
     value = {1: 9, 3: 3}[best]
@@ -789,6 +789,7 @@ def test_a_maximised_objective_calls_the_highest_trial_best(tmp_path, monkeypatc
     ("report", 1, [3, 0], {3: 6.0, 0: 4.0}),      # the best (3) loses to the base preset (5) on other seeds
     ("measure", 3, [1, 2, 0], {1: 6.0, 2: 7.0, 0: 8.0}),   # the base preset among the 3 best: run once
 ])
+@pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
 def test_validate_reruns_the_base_presets_trial_besides_the_k_best(tmp_path, monkeypatch, objective, k, picked,
                                                                     on_validation):
     """--validate K reruns the K best trials in the study's direction and trial 0 (marked first:
@@ -796,7 +797,6 @@ def test_validate_reruns_the_base_presets_trial_besides_the_k_best(tmp_path, mon
     settings; so when the tuning-seed winner loses there, --write-preset falls back to the base
     preset's settings (lipschitz 1). Runs and their scores are stubbed: trial n scores
     ``on_validation[n]``."""
-    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
     study = f16_study(tmp_path, objective)
     ran = []
     monkeypatch.setattr(Study, "run_to_end", staticmethod(lambda path, config: ran.append((int(path.name), config))))
@@ -904,11 +904,11 @@ def test_dead_trial_detection_judges_only_this_machines_trials(tmp_path, monkeyp
                       unmarked.number: ("RUNNING", None, None), 3: ("WAITING", None, here.number)}
 
 
-def test_a_presets_provenance_counts_every_ended_trial(tmp_path, monkeypatch):
+@pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
+def test_a_presets_provenance_counts_every_ended_trial(tmp_path):
     """"trials" in --write-preset's provenance is what the study's --trials counts: complete (2),
     pruned (1) and failed in their own code (1), not a trial failed only to hand it to a retry: 4."""
     from optuna.trial import TrialState, create_trial
-    monkeypatch.setattr(presets, "tuned_file", lambda env: tmp_path / "tuned.json")
     study = Study.open(tmp_path / "study", None, {"env": "square", "agent": "dqn", "episodes": "4"},
                        {"first": "sampled"})
     for trial in [create_trial(value=7.0, user_attrs={"settings": {"lr": 0.004}}),
