@@ -35,6 +35,8 @@ def test_seeds_are_a_count_a_range_or_a_list(given, seeds):
     ("a-b", "seeds must be a count N, a range A-B or a comma list, got 'a-b'"),
     ("1,,2", "seeds must be a count N, a range A-B or a comma list, got '1,,2'"),
     ("-3", "seeds must be a count N, a range A-B or a comma list, got '-3'"),
+    ("x", "seeds must be a count N, a range A-B or a comma list, got 'x'"),
+    ("5-2", "seeds range '5-2' is empty"),
 ])
 def test_bad_seeds_are_refused_in_words(given, words):
     with pytest.raises(ValueError) as err:

@@ -345,9 +345,11 @@ def test_cost_ratio_pairs_each_episode_with_the_ac_optimum_on_its_prices():
                                                          rel=1e-6)
 
 
-def test_path_cost_by_hand_on_two_trades():
-    env = LiquidationEnv(seeds=[0], trades=2, horizon=2.0, shares=1000)
+@pytest.mark.parametrize("horizon", [2.0, 5.0])      # tau 1, and 2.5 (where sigma^2 tau and sigma^2 / tau differ)
+def test_path_cost_by_hand_on_two_trades(horizon):
+    env = LiquidationEnv(seeds=[0], trades=2, horizon=horizon, shares=1000)
     m, s0 = env.model, 50.0
+    assert m.tau == horizon / 2
     a = m.eta / m.tau
     step = math.sqrt(m.sigma2 * m.tau)
     first = 600 * (m.eps + a * 600)                                  # at S_0: no noise before the first trade

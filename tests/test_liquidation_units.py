@@ -1,7 +1,8 @@
 """The Almgren-Chriss model (envs/liquidation/almgren_chriss.py) and the liquidation env's rules
 (envs/liquidation/env.py) by hand on small markets where tau is not 1: the lambda -> 0 limit, the
 schedule between the limit and the default's urgency, any schedule's cost, the level noise, the
-log-returns, the price path's cost, and the state a checkpoint keeps."""
+log-returns, and the state a checkpoint keeps. (The price path's cost where tau is 2.5: test_liquidation's
+path-cost test.)"""
 import math
 
 import pytest
@@ -165,19 +166,6 @@ def test_the_last_trades_return_moves_the_price_by_the_last_draw():
     out = env.step(td.set("action", torch.tensor([[1.0]], dtype=D)))["next"]
     assert out["observation"][0, 4:6].tolist() == pytest.approx(
         [math.log(first / 50.0), math.log((first + step * xi[1] - m.gamma * 500) / first)], rel=1e-12)
-
-
-def test_the_price_paths_cost_where_tau_is_not_one():
-    """Two trades over 5 days (tau 2.5): the second trade at S_0 + sigma sqrt(tau) xi_1 - gamma n_1."""
-    env = LiquidationEnv(seeds=[0], trades=2, horizon=5.0, shares=1000)
-    m, s0 = env.model, 50.0
-    assert m.tau == 2.5
-    step, a = math.sqrt(m.sigma2 * 2.5), m.eta / 2.5
-    first = 600 * (m.eps + a * 600)
-    second = 400 * (s0 - (s0 + step * 0.5 - m.gamma * 600 - m.eps - a * 400))
-    risk = m.lam * m.sigma2 * 2.5 * 400 ** 2
-    got = env.path_cost(torch.tensor([600.0, 400.0], dtype=D), torch.tensor([[0.5, -1.0]], dtype=D))
-    assert got.tolist() == pytest.approx([first + second + risk], rel=1e-12)
 
 
 def test_the_schedules_last_trade_sells_what_is_left():

@@ -3,7 +3,7 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
-from trl_dgpq.collectors.experiment import TIMING_COLUMNS, parse_seeds, resolve_config, run_experiment
+from trl_dgpq.collectors.experiment import TIMING_COLUMNS, resolve_config, run_experiment
 from trl_dgpq.collectors.online import OnlineCollector
 from trl_dgpq.envs.square.env import SquareEnv
 
@@ -166,15 +166,6 @@ def test_backends_run_the_report_and_paper_presets(gp):
     assert report.steps[0] == 200 and not report.terminated[0] and report.qhat_updates[0] == 0
     paper = run_experiment(resolve_config(preset="paper", seeds=[0], episodes=1, gp=gp, budget=20), progress=False)
     assert paper.steps[0] == 200 and paper["return"][0] == -200 and paper.qhat_updates[0] > 0
-
-
-def test_parse_seeds():
-    assert parse_seeds("3") == [0, 1, 2]
-    assert parse_seeds("3-5") == [3, 4, 5]
-    assert parse_seeds("1,5,9") == [1, 5, 9]
-    for bad in ("0", "5-2", "1,1", "x", "-3"):
-        with pytest.raises(ValueError):
-            parse_seeds(bad)
 
 
 def test_reward_noise_is_gaussian_and_leaves_the_moves_alone():
