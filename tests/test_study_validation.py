@@ -3,7 +3,6 @@ seeds, with which settings, what is kept and what a second call reuses; the seed
 taken to its end from any state; the trial a preset is written from, in either direction."""
 from types import SimpleNamespace
 
-import optuna
 import pytest
 from optuna.distributions import FloatDistribution
 from optuna.trial import TrialState, create_trial
