@@ -237,3 +237,85 @@ def test_the_published_rows_configs_and_manifest_by_hand(tmp_path, monkeypatch):
     assert published.stamp("report", ("f16",), "cmd") == dict(scale="report", only=["f16"], command="cmd",
                                                              published="2026-01-02 03:04", commit="c" * 40, dirty=True)
     assert published.stamp("quick", None, "cmd")["only"] == []
+
+
+def two_parts(monkeypatch, scales: dict):
+    """The corridor as a domain ("corridor": c1, c2) and a part apart ("corridor-apart": c3), each of
+    constant-agent experiments at the sizes ``scales[part]`` (change them to change a part's plan)."""
+    def part(name, experiments):
+        return SimpleNamespace(
+            REPRODUCE=[(n, dict(agent="constant")) for n in experiments], TITLE=name, SUMMARY=f"{name}.", CLAIMS=[],
+            SCALES=scales[name],
+            reproduce_section=lambda runs, out, label, title, judged: f"## {name}: " + ", ".join(runs) + "\n")
+    parts = [(SimpleNamespace(name=n, examples=lambda: ["corridor"]), part(n, e))
+             for n, e in (("corridor", ("c1", "c2")), ("corridor-apart", ("c3",)))]
+    monkeypatch.setattr(reproduce, "reproductions", lambda only=None: [(p, a) for p, a in parts
+                                                                       if not only or p.name in only])
+
+
+def test_publishing_a_part_into_an_earlier_publication_keeps_its_other_parts_as_published(tmp_path, monkeypatch):
+    """Adding or replacing a part never needs the runs of the rest: the earlier publication's other
+    parts are kept byte for byte, the manifest and REPORT.md name who published them (through a
+    second republication too), and the whole rebuilds from data/ alone; a kept part whose plan
+    changed since, or another scale, is refused before anything moves."""
+    scales = {part: {"smoke": (2, 3), "quick": (2, 3)} for part in ("corridor", "corridor-apart")}
+    two_parts(monkeypatch, scales)
+    monkeypatch.setattr(published, "CHECKPOINT_FIGURES", ("corridor/drawn.json", "corridor-apart/drawn.json"))
+    first, to = tmp_path / "first", tmp_path / "pub"
+    run_all(first)
+    for part in ("corridor", "corridor-apart"):
+        (first / part).mkdir()
+        (first / part / "drawn.json").write_text(f"{part} first")
+    reproduce.publish(first, to, "smoke")
+    stamp = json.loads((to / "data" / "manifest.json").read_text())
+    stamp["published"], stamp["commit"] = "2000-01-01 00:00", "e" * 40      # an older publication than today's
+    (to / "data" / "manifest.json").write_text(json.dumps(stamp))
+    before = {p.name: p.read_bytes() for p in (to / "data").glob("c[12].*")}
+    assert len(before) == 4
+
+    scales["corridor-apart"]["smoke"] = (2, 4)         # the part apart's plan changes and runs again, alone
+    second = tmp_path / "second"
+    planned = reproduce.experiments("smoke", ["corridor-apart"])
+    sweep.create(second, planned, jobs := sweep.plan(planned, second, None))
+    for job in jobs:
+        runner.RunFolder(job.folder).path.mkdir(parents=True)
+        runner.start(job.config, runner.RunFolder(job.folder), progress=False)
+        sweep.merge(second, job.experiment, [job])
+    for part in ("corridor", "corridor-apart"):
+        (second / part).mkdir()
+        (second / part / "drawn.json").write_text(f"{part} second")
+    reproduce.publish(second, to, "smoke", ["corridor-apart"])
+    assert {p.name: p.read_bytes() for p in (to / "data").glob("c[12].*")} == before
+    assert published.load(to, "c3").df.episode.max() == 4
+    assert (to / "corridor" / "drawn.json").read_text() == "corridor first"            # a kept part's, as published
+    assert (to / "corridor-apart" / "drawn.json").read_text() == "corridor-apart second"
+    now = published.manifest(to)
+    assert now["only"] == ["corridor", "corridor-apart"] and now["experiments"] == ["c1", "c2", "c3"]
+    assert now["planned"] == ["c1", "c2", "c3"]
+    assert now["command"] == "python scripts/reproduce.py --scale smoke --only corridor corridor-apart"
+    kept = [dict(parts=["corridor"], experiments=["c1", "c2"], command="python scripts/reproduce.py --scale smoke",
+                 published="2000-01-01 00:00", commit="e" * 40, dirty=stamp["dirty"])]
+    assert now["kept"] == kept
+    head = (to / "REPORT.md").read_text().split("\n\n")[1]
+    assert ("; those of corridor (2 experiments) as `python scripts/reproduce.py --scale smoke` published them on "
+            f"2000-01-01 00:00 at commit {'e' * 40}") in head and head.count("kept unchanged") == 1
+    assert "## corridor: c1, c2" in (to / "REPORT.md").read_text()
+
+    reproduce.publish(second, to, "smoke", ["corridor-apart"])      # again: the first publisher is still named
+    assert published.manifest(to)["kept"] == kept
+    rebuilt = {p: p.read_bytes() for p in to.rglob("*") if p.is_file()}
+    (to / "REPORT.md").unlink()
+    reproduce.rebuild(to)
+    assert {p: p.read_bytes() for p in to.rglob("*") if p.is_file()} == rebuilt
+
+    scales["corridor"]["smoke"] = (2, 5)               # a kept part's plan moved on: its rows are not the plan's
+    with pytest.raises(ValueError, match="the plan of c1, c2 changed since they were published"):
+        reproduce.publish(second, to, "smoke", ["corridor-apart"])
+    with pytest.raises(ValueError, match="holds the smoke scale's publication of corridor: publishing "
+                                         "corridor-apart at the quick scale into it would lose them"):
+        reproduce.publish(second, to, "quick", ["corridor-apart"])
+    assert {p: p.read_bytes() for p in to.rglob("*") if p.is_file()} == rebuilt
+    scales["corridor"]["smoke"] = (2, 3)
+    reproduce.publish(first, to, "smoke")               # every part: nothing kept
+    assert "kept" not in published.manifest(to) and (to / "corridor-apart" / "drawn.json").read_text() == \
+        "corridor-apart first"

@@ -8,7 +8,9 @@ summary.md and the figures drawn from episodes are *rebuilt from DIR/data alone*
 
     DIR/data/manifest.json      the scale, the domains, the plan's experiments (``planned``) and
                                 those finished and kept (``experiments``), the command, and when
-                                and at which commit the data were published
+                                and at which commit the data were published; where some parts
+                                were published into an earlier publication, which of its
+                                experiments were kept and who published them (``kept``)
     DIR/data/<experiment>.json  its resolved config (every seed), the versions and commit the
                                 sweep was made with, what of the env's model it uses, and each
                                 job's seeds and commit
@@ -26,6 +28,7 @@ run (REPORT.md says so).
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from pathlib import Path
 
@@ -53,13 +56,17 @@ def job_commits(folder: Path) -> list:
     return out
 
 
-def write_data(out: Path, to: Path, names: list, manifest: dict) -> list:
+def write_data(out: Path, to: Path, names: list, manifest: dict, kept_from=None, kept=()) -> list:
     """The rows and configs of ``names`` (finished experiments of the sweep in ``out``) into
     ``to/data`` (a new folder: ``reproduce.publish`` builds a publication apart, then puts it in
-    place), and the manifest; returns the paths written."""
+    place), those of ``kept`` copied byte for byte from the publication ``kept_from``, and the
+    manifest (its experiments in the plan's order); returns the paths written."""
     data = to / DATA
     data.mkdir(parents=True, exist_ok=True)
     written = []
+    for name in kept:
+        for suffix in (".csv.xz", ".json"):
+            written.append(Path(shutil.copy2(Path(kept_from) / DATA / f"{name}{suffix}", data / f"{name}{suffix}")))
     for name in names:
         folder = out / name
         df = read_csv_exact(folder / "episodes.csv").drop(columns=[c for c in DROPPED], errors="ignore")
@@ -69,7 +76,10 @@ def write_data(out: Path, to: Path, names: list, manifest: dict) -> list:
         config["jobs"] = job_commits(folder)
         (data / f"{name}.json").write_text(json.dumps(config, indent=1, sort_keys=True) + "\n")
         written += [rows, data / f"{name}.json"]
-    (data / MANIFEST).write_text(json.dumps({**manifest, "experiments": names}, indent=1) + "\n")
+    every = set(names) | set(kept)
+    order = [n for n in manifest.get("planned", []) if n in every] + [n for n in [*names, *kept] if
+                                                                      n not in manifest.get("planned", [])]
+    (data / MANIFEST).write_text(json.dumps({**manifest, "experiments": order}, indent=1) + "\n")
     return written + [data / MANIFEST]
 
 
@@ -108,6 +118,22 @@ def stamp(scale: str, only, command: str) -> dict:
     git = runner.provenance()["git"]
     return dict(scale=scale, only=list(only or []), command=command, published=time.strftime("%Y-%m-%d %H:%M"),
                 commit=git["commit"], dirty=git["dirty"])
+
+
+PROVENANCE = ("command", "published", "commit", "dirty")
+
+
+def kept_record(earlier: dict, parts: list, names: list) -> list:
+    """The manifest's ``kept``: for each publication the kept experiments ``names`` (of ``parts``)
+    were first published by, [{parts, experiments, command, published, commit, dirty}], from the
+    earlier publication's manifest (its own experiments, and those it had kept in turn)."""
+    before = earlier.get("kept", [])
+    carried = {n for k in before for n in k["experiments"]}
+    out = [{**k, "parts": [p for p in k["parts"] if p in parts],
+            "experiments": [n for n in k["experiments"] if n in names]} for k in before]
+    out.append({"parts": [p for p in parts if not any(p in k["parts"] for k in before)],
+                "experiments": [n for n in names if n not in carried], **{f: earlier[f] for f in PROVENANCE}})
+    return [k for k in out if k["experiments"]]
 
 
 def size(folder) -> int:

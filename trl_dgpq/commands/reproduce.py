@@ -220,7 +220,11 @@ def runs_of(out: Path, scale: str, wall: float, only, command: str) -> tuple:
     planned = {name: kept[name].config if name in kept else None for name in stamp.get("planned", kept)}
     head = (f"# Reproduction of the seed report ({scale} scale)\n\nBuilt from the per-episode data in "
             f"`data/` by `trl-dgpq report` on this folder: the runs of `{stamp['command']}`, published "
-            f"{stamp['published']} at commit {stamp['commit']}{' (dirty)' if stamp['dirty'] else ''}. Every "
+            f"{stamp['published']} at commit {stamp['commit']}{' (dirty)' if stamp['dirty'] else ''}"
+            + "".join(f"; those of {', '.join(k['parts'])} ({count(len(k['experiments']), 'experiment')}) as "
+                      f"`{k['command']}` published them on {k['published']} at commit {k['commit']}"
+                      f"{' (dirty)' if k['dirty'] else ''}, kept unchanged" for k in stamp.get("kept", []))
+            + ". Every "
             "number and figure below is computed from those files (a trained agent's figures from what its "
             "checkpoint showed, kept beside them: Q̂ over the square, the F-16's trace, liquidation's holdings), "
             "but the push animation, kept as drawn at the run.\n\n")
@@ -590,13 +594,44 @@ def plan_text(planned: dict, publication: Path, max_minutes: Optional[float] = N
             f"times per seed-episode from {publication}, CPU time where recorded, else wall time on 2 loaded cores)\n")
 
 
+def kept_parts(earlier: dict, scale: str, only) -> list:
+    """The parts of an earlier publication (its manifest) that publishing ``only`` into its folder
+    keeps as they are: those it holds that ``only`` does not name; none where ``only`` is every part.
+    Refused at another scale: the parts of one publication share its scale."""
+    if earlier is None or not only:
+        return []
+    keep = [p for p in (earlier["only"] or [part.name for part, _ in reproductions()]) if p not in only]
+    if keep and earlier["scale"] != scale:
+        raise ValueError(f"the folder holds the {earlier['scale']} scale's publication of {', '.join(keep)}: "
+                         f"publishing {', '.join(only)} at the {scale} scale into it would lose them; publish "
+                         "into another folder, or every part")
+    return keep
+
+
+def kept_experiments(to: Path, earlier: dict, scale: str, keep: list) -> list:
+    """The experiments of the ``keep`` parts the earlier publication in ``to`` holds, each refused
+    where today's plan differs from the settings it ran with (its rows would not be the plan's)."""
+    from trl_dgpq.analysis import published
+    planned = experiments(scale, keep)
+    names = [n for n in earlier["experiments"] if n in planned]
+    sections = lambda c: same_config({k: c[k] for k in ("run", "env", "agent")})   # noqa: E731
+    moved = [n for n in names if sections(published.recorded_config(to, n)) != sections(planned[n])]
+    if moved:
+        raise ValueError(f"the plan of {', '.join(moved)} changed since they were published: run them again "
+                         "(their parts' --only) and publish those parts too")
+    return names
+
+
 def publish(out: Path, to: Path, scale: str, only=None) -> list:
     """What the repository keeps of the reproduction in ``out`` (e.g. into results/report): the
     per-episode data and configs of its finished experiments (``analysis/published.py``), the data
     of the figures drawn from checkpoints, and REPORT.md, claims.md, results.csv, summary.md,
     sections/ and the figures rebuilt from those alone. Built beside ``to`` and then put in its
     place whole, so a failure leaves the earlier publication as it was; ``to`` must be an earlier
-    publication, empty, or absent (it holds the publication alone), and apart from ``out``."""
+    publication, empty, or absent (it holds the publication alone), and apart from ``out``.
+    Publishing some parts (``only``) into an earlier publication of the same scale replaces those
+    parts and keeps its others as they were published (data copied byte for byte, the manifest
+    naming where they came from: ``kept``), so adding a part never needs the runs of the rest."""
     import shutil
 
     from trl_dgpq.analysis import published
@@ -606,6 +641,9 @@ def publish(out: Path, to: Path, scale: str, only=None) -> list:
         raise ValueError(f"publish into a folder apart from the runs' ({to} and {out} hold one another)")
     if to.exists() and (not to.is_dir() or (any(to.iterdir()) and not published.is_published(to))):
         raise ValueError(f"{to} is neither an earlier publication nor empty: publish into a folder of its own")
+    earlier = published.manifest(to) if published.is_published(to) else None
+    keep = kept_parts(earlier, scale, only)
+    kept = kept_experiments(to, earlier, scale, keep) if keep else []
     planned = experiments(scale, only)
     names = [name for name in planned if finished(out, name)]
     if not names:
@@ -613,18 +651,26 @@ def publish(out: Path, to: Path, scale: str, only=None) -> list:
     for name in names:     # seeds that chose anything are never published (selection.py): the plan's, the runs'
         check_reportable(planned[name], name, publication=True)
         check_reportable(load_run(out / name).config, name, publication=True)
+    if keep:               # the publication's parts in their earlier order, those new to it after
+        theirs = earlier["only"] or [part.name for part, _ in reproductions()]
+        only = [p for p in theirs if p in keep or p in only] + [p for p in only if p not in theirs]
     # the code that publishes, as committed (runner.provenance: its files unchanged)
     stamp = {**published.stamp(scale, only, f"python scripts/reproduce.py --scale {scale}"
-                                              + (" --only " + " ".join(only) if only else "")), "planned": list(planned)}
+                                              + (" --only " + " ".join(only) if only else "")),
+             "planned": list(experiments(scale, only) if keep else planned)}
+    if keep:
+        stamp["kept"] = published.kept_record(earlier, keep, kept)
     new, old = to.with_name(f".{to.name}.new"), to.with_name(f".{to.name}.old")
     for leftover in (new, old):
         shutil.rmtree(leftover, ignore_errors=True)
     try:
-        published.write_data(out, new, names, stamp)
+        published.write_data(out, new, names, stamp, kept_from=to if kept else None, kept=kept)
         for figure in published.CHECKPOINT_FIGURES:
-            if (out / figure).is_file():
+            # a kept part's figure as it was published; the others' from the runs now
+            source = to if Path(figure).parts[0] in keep else out
+            if (source / figure).is_file():
                 (new / figure).parent.mkdir(parents=True, exist_ok=True)
-                shutil.copy2(out / figure, new / figure)
+                shutil.copy2(source / figure, new / figure)
         write_report(new, scale, 0.0, only)
     except BaseException:
         shutil.rmtree(new, ignore_errors=True)
@@ -695,7 +741,8 @@ def main(argv=None) -> int:
     p.add_argument("--publish", default=None, metavar="DIR",
                    help="when done, keep the finished experiments' per-episode data and configs in DIR/data and "
                         "rebuild REPORT.md, claims.md, results.csv, summary.md and the figures in DIR from them "
-                        "alone (what results/ keeps; `trl-dgpq report DIR` rebuilds them again)")
+                        "alone (what results/ keeps; `trl-dgpq report DIR` rebuilds them again); with --only, into "
+                        "an earlier publication, the parts it names replace theirs and the others are kept")
     args = p.parse_args(argv)
     suffix = "".join(f"-{d}" for d in args.only or ())
     out = Path(args.out or f"runs/reproduce-{args.scale}{suffix}")
