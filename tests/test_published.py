@@ -211,6 +211,15 @@ def test_the_published_rows_configs_and_manifest_by_hand(tmp_path, monkeypatch):
     written = published.write_data(tmp_path / "sweep", to, ["e"], {"scale": "s"})
     assert sorted(p.name for p in written) == ["e.csv.xz", "e.json", "manifest.json"]
     assert published.manifest(to) == {"scale": "s", "experiments": ["e"]}
+    # the committed files' format (a change would rewrite every published config): one space an indent, keys sorted
+    assert (to / "data" / "e.json").read_text() == ('{\n "jobs": [\n  {\n   "commit": "' + "a" * 40 + '",\n   "dirty": '
+                                                   'false,\n   "seeds": [\n    10,\n    11\n   ]\n  },\n  {\n   '
+                                                   '"commit": "' + "b" * 40 + '",\n   "dirty": true,\n   "seeds": [\n'
+                                                   '    12\n   ]\n  }\n ],\n "run": {\n  "env": "square",\n  '
+                                                   '"seeds": [\n   10,\n   11,\n   12\n  ]\n }\n}\n')
+    assert (to / "data" / "manifest.json").read_text() == '{\n "scale": "s",\n "experiments": [\n  "e"\n ]\n}\n'
+    narrow = published.load(to, "e", columns=("cpu_s",))                 # the columns asked for and the keys alone
+    assert list(narrow.df.columns) == ["seed", "episode", "steps", "cpu_s", "env_steps"]
     with lzma.open(to / "data" / "e.csv.xz", "rt") as f:
         assert f.read().splitlines() == ["seed,episode,steps,wall_s,cpu_s", "11,1,5,0.1234568,9", "10,2,7,1,9",
                                          "10,1,3,2,9"]
@@ -228,6 +237,8 @@ def test_the_published_rows_configs_and_manifest_by_hand(tmp_path, monkeypatch):
     assert published.commits_of(Run(exp, run.df, {"run": {}})) == ["aaaaaaa", "bbbbbbb-dirty"]   # a sweep's jobs
     plain = tmp_path / "plain"
     plain.mkdir()
+    (plain / "config.json").write_text(json.dumps({"git": {}}))          # a config of before its run section
+    assert published.job_commits(plain) == [dict(seeds=None, commit=None, dirty=None)]
     (plain / "config.json").write_text(json.dumps({"run": {"seeds": [3]}, "git": {}}))
     assert published.job_commits(plain) == [dict(seeds=[3], commit=None, dirty=None)]
     assert published.commits_of(Run(plain, run.df, {"run": {}})) == ["?"]
@@ -239,83 +250,181 @@ def test_the_published_rows_configs_and_manifest_by_hand(tmp_path, monkeypatch):
     assert published.stamp("quick", None, "cmd")["only"] == []
 
 
-def two_parts(monkeypatch, scales: dict):
-    """The corridor as a domain ("corridor": c1, c2) and a part apart ("corridor-apart": c3), each of
+PARTS = {"corridor": ("c1", "c2"), "corridor-apart": ("c3",), "corridor-more": ("c4",), "corridor-last": ("c5",)}
+
+
+def corridor_parts(monkeypatch, scales: dict):
+    """The corridor as a domain ("corridor": c1, c2) and three parts apart (c3, c4, c5), each of
     constant-agent experiments at the sizes ``scales[part]`` (change them to change a part's plan)."""
     def part(name, experiments):
         return SimpleNamespace(
             REPRODUCE=[(n, dict(agent="constant")) for n in experiments], TITLE=name, SUMMARY=f"{name}.", CLAIMS=[],
             SCALES=scales[name],
             reproduce_section=lambda runs, out, label, title, judged: f"## {name}: " + ", ".join(runs) + "\n")
-    parts = [(SimpleNamespace(name=n, examples=lambda: ["corridor"]), part(n, e))
-             for n, e in (("corridor", ("c1", "c2")), ("corridor-apart", ("c3",)))]
+    parts = [(SimpleNamespace(name=n, examples=lambda: ["corridor"]), part(n, e)) for n, e in PARTS.items()]
     monkeypatch.setattr(reproduce, "reproductions", lambda only=None: [(p, a) for p, a in parts
                                                                        if not only or p.name in only])
+
+
+def run_parts(out, only, figures="") -> None:
+    """Every experiment of the ``only`` parts run in the sweep ``out``, and the checkpoint figures'
+    kept data as each part's folder would hold them (their text: the part's name and ``figures``)."""
+    planned = reproduce.experiments("smoke", only)
+    sweep.create(out, planned, jobs := sweep.plan(planned, out, None))
+    for job in jobs:
+        runner.RunFolder(job.folder).path.mkdir(parents=True)
+        runner.start(job.config, runner.RunFolder(job.folder), progress=False)
+        sweep.merge(out, job.experiment, [job])
+    for part in PARTS:
+        (out / part).mkdir()
+        (out / part / "drawn.json").write_text(f"{part} {figures}")
+
+
+def files(folder) -> dict:
+    return {p: p.read_bytes() for p in Path(folder).rglob("*") if p.is_file()}
 
 
 def test_publishing_a_part_into_an_earlier_publication_keeps_its_other_parts_as_published(tmp_path, monkeypatch):
     """Adding or replacing a part never needs the runs of the rest: the earlier publication's other
     parts are kept byte for byte, the manifest and REPORT.md name who published them (through a
-    second republication too), and the whole rebuilds from data/ alone; a kept part whose plan
-    changed since, or another scale, is refused before anything moves."""
-    scales = {part: {"smoke": (2, 3), "quick": (2, 3)} for part in ("corridor", "corridor-apart")}
-    two_parts(monkeypatch, scales)
-    monkeypatch.setattr(published, "CHECKPOINT_FIGURES", ("corridor/drawn.json", "corridor-apart/drawn.json"))
+    later publication too), and the whole rebuilds from data/ alone; a kept part whose plan changed
+    since, or another scale, is refused before anything moves."""
+    scales = {part: {"smoke": (2, 3), "quick": (2, 3)} for part in PARTS}
+    corridor_parts(monkeypatch, scales)
+    monkeypatch.setattr(published, "CHECKPOINT_FIGURES", tuple(f"{part}/drawn.json" for part in PARTS))
     first, to = tmp_path / "first", tmp_path / "pub"
-    run_all(first)
-    for part in ("corridor", "corridor-apart"):
-        (first / part).mkdir()
-        (first / part / "drawn.json").write_text(f"{part} first")
-    reproduce.publish(first, to, "smoke")
-    stamp = json.loads((to / "data" / "manifest.json").read_text())
-    stamp["published"], stamp["commit"] = "2000-01-01 00:00", "e" * 40      # an older publication than today's
+    run_parts(first, None, "first")
+    reproduce.publish(first, to, "smoke", ["corridor", "corridor-more"])
+    stamp = json.loads((to / "data" / "manifest.json").read_text())    # an older publication than today's, dirty
+    stamp.update(published="2000-01-01 00:00", commit="e" * 40, dirty=True)
     (to / "data" / "manifest.json").write_text(json.dumps(stamp))
-    before = {p.name: p.read_bytes() for p in (to / "data").glob("c[12].*")}
-    assert len(before) == 4
+    before = {p.name: p.read_bytes() for p in (to / "data").glob("c[124].*")}
+    assert len(before) == 6
 
-    scales["corridor-apart"]["smoke"] = (2, 4)         # the part apart's plan changes and runs again, alone
+    scales["corridor-apart"]["smoke"] = (2, 4)         # the part apart's plan changes; it runs again, alone
     second = tmp_path / "second"
-    planned = reproduce.experiments("smoke", ["corridor-apart"])
-    sweep.create(second, planned, jobs := sweep.plan(planned, second, None))
-    for job in jobs:
-        runner.RunFolder(job.folder).path.mkdir(parents=True)
-        runner.start(job.config, runner.RunFolder(job.folder), progress=False)
-        sweep.merge(second, job.experiment, [job])
-    for part in ("corridor", "corridor-apart"):
-        (second / part).mkdir()
-        (second / part / "drawn.json").write_text(f"{part} second")
+    run_parts(second, ["corridor-apart"], "second")
     reproduce.publish(second, to, "smoke", ["corridor-apart"])
-    assert {p.name: p.read_bytes() for p in (to / "data").glob("c[12].*")} == before
+    assert {p.name: p.read_bytes() for p in (to / "data").glob("c[124].*")} == before
     assert published.load(to, "c3").df.episode.max() == 4
-    assert (to / "corridor" / "drawn.json").read_text() == "corridor first"            # a kept part's, as published
-    assert (to / "corridor-apart" / "drawn.json").read_text() == "corridor-apart second"
+    assert [(to / part / "drawn.json").read_text() for part in ("corridor", "corridor-more", "corridor-apart")] == [
+        "corridor first", "corridor-more first", "corridor-apart second"]      # a kept part's as published
+    assert not (to / "corridor-last" / "drawn.json").exists()                   # a part in neither
     now = published.manifest(to)
-    assert now["only"] == ["corridor", "corridor-apart"] and now["experiments"] == ["c1", "c2", "c3"]
-    assert now["planned"] == ["c1", "c2", "c3"]
-    assert now["command"] == "python scripts/reproduce.py --scale smoke --only corridor corridor-apart"
-    kept = [dict(parts=["corridor"], experiments=["c1", "c2"], command="python scripts/reproduce.py --scale smoke",
-                 published="2000-01-01 00:00", commit="e" * 40, dirty=stamp["dirty"])]
-    assert now["kept"] == kept
-    head = (to / "REPORT.md").read_text().split("\n\n")[1]
-    assert ("; those of corridor (2 experiments) as `python scripts/reproduce.py --scale smoke` published them on "
-            f"2000-01-01 00:00 at commit {'e' * 40}") in head and head.count("kept unchanged") == 1
+    assert now["only"] == ["corridor", "corridor-more", "corridor-apart"]
+    assert now["experiments"] == now["planned"] == ["c1", "c2", "c3", "c4"]
+    assert now["command"] == "python scripts/reproduce.py --scale smoke --only corridor corridor-more corridor-apart"
+    earliest = dict(parts=["corridor", "corridor-more"], experiments=["c1", "c2", "c4"],
+                    command="python scripts/reproduce.py --scale smoke --only corridor corridor-more",
+                    published="2000-01-01 00:00", commit="e" * 40, dirty=True)
+    assert now["kept"] == [earliest]
+    assert (to / "REPORT.md").read_text().split("\n\n")[1].endswith(
+        f"; those of corridor, corridor-more (3 experiments) as `{earliest['command']}` published them on 2000-01-01 "
+        f"00:00 at commit {'e' * 40} (dirty), kept unchanged. Every number and figure below is computed from those "
+        "files (a trained agent's figures from what its checkpoint showed, kept beside them: Q̂ over the square, the "
+        "F-16's trace, liquidation's holdings), but the push animation, kept as drawn at the run.")
     assert "## corridor: c1, c2" in (to / "REPORT.md").read_text()
 
-    reproduce.publish(second, to, "smoke", ["corridor-apart"])      # again: the first publisher is still named
-    assert published.manifest(to)["kept"] == kept
-    rebuilt = {p: p.read_bytes() for p in to.rglob("*") if p.is_file()}
+    second_stamp = {k: now[k] for k in published.PROVENANCE}
+    third = tmp_path / "third"                         # one more part: both earlier publishers are named
+    run_parts(third, ["corridor-last"], "third")
+    returned = reproduce.publish(third, to, "smoke", ["corridor-last"])
+    assert returned == sorted(files(to))
+    kept = published.manifest(to)["kept"]
+    assert kept == [earliest, dict(parts=["corridor-apart"], experiments=["c3"], **second_stamp)]
+    head = (to / "REPORT.md").read_text().split("\n\n")[1]
+    assert f"(dirty), kept unchanged; those of corridor-apart (1 experiment) as `{second_stamp['command']}`" in head
+    rebuilt = files(to)
     (to / "REPORT.md").unlink()
     reproduce.rebuild(to)
-    assert {p: p.read_bytes() for p in to.rglob("*") if p.is_file()} == rebuilt
+    assert files(to) == rebuilt
 
     scales["corridor"]["smoke"] = (2, 5)               # a kept part's plan moved on: its rows are not the plan's
-    with pytest.raises(ValueError, match="the plan of c1, c2 changed since they were published"):
-        reproduce.publish(second, to, "smoke", ["corridor-apart"])
-    with pytest.raises(ValueError, match="holds the smoke scale's publication of corridor: publishing "
-                                         "corridor-apart at the quick scale into it would lose them"):
-        reproduce.publish(second, to, "quick", ["corridor-apart"])
-    assert {p: p.read_bytes() for p in to.rglob("*") if p.is_file()} == rebuilt
+    with pytest.raises(ValueError, match="the plan of c1, c2 changed since they were published: run them again"):
+        reproduce.publish(third, to, "smoke", ["corridor-last"])
+    with pytest.raises(ValueError, match="holds the smoke scale's publication of corridor, corridor-more, "
+                                         "corridor-apart: publishing corridor-last at the quick scale into it would "
+                                         "lose them; publish into another folder, or every part"):
+        reproduce.publish(third, to, "quick", ["corridor-last"])
+    assert files(to) == rebuilt
     scales["corridor"]["smoke"] = (2, 3)
     reproduce.publish(first, to, "smoke")               # every part: nothing kept
     assert "kept" not in published.manifest(to) and (to / "corridor-apart" / "drawn.json").read_text() == \
         "corridor-apart first"
+
+
+def test_which_parts_a_publication_keeps(monkeypatch):
+    """Those of the earlier publication that ``only`` does not name; all its parts where its ``only``
+    was every part; none without an earlier one or when every part is published now; another scale
+    refused only where a part would be lost."""
+    corridor_parts(monkeypatch, {part: {"smoke": (2, 3)} for part in PARTS})
+    every = dict(scale="smoke", only=[])
+    assert reproduce.kept_parts(every, "smoke", ["corridor-apart"]) == ["corridor", "corridor-more", "corridor-last"]
+    assert reproduce.kept_parts(dict(scale="smoke", only=["corridor-last", "corridor"]), "smoke", ["corridor"]) == \
+        ["corridor-last"]
+    assert reproduce.kept_parts(None, "smoke", ["corridor"]) == []
+    assert reproduce.kept_parts(every, "smoke", None) == reproduce.kept_parts(every, "smoke", []) == []
+    assert reproduce.kept_parts(dict(scale="quick", only=["corridor"]), "smoke", ["corridor"]) == []
+
+
+def test_publish_writes_only_the_named_parts_and_leaves_nothing_half_done(tmp_path, monkeypatch):
+    """A sweep holding every part published with ``only``: those parts' experiments alone; leftovers
+    of a publication cut short removed; a publication that fails leaves the earlier one as it was and
+    nothing beside it; a sweep with nothing finished refused."""
+    corridor_parts(monkeypatch, {part: {"smoke": (2, 3)} for part in PARTS})
+    out, to = tmp_path / "out", tmp_path / "pub"
+    run_parts(out, None)
+    for leftover in (".pub.new", ".pub.old"):           # a publication killed half-way
+        (tmp_path / leftover).mkdir()
+        (tmp_path / leftover / "stale.txt").write_text("x")
+    reproduce.publish(out, to, "smoke", ["corridor-apart"])
+    assert published.manifest(to)["experiments"] == ["c3"] and "kept" not in published.manifest(to)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "pub"] and not list(to.rglob("stale.txt"))
+    earlier = files(to)
+    monkeypatch.setattr(reproduce, "write_report", lambda *a: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        reproduce.publish(out, to, "smoke", ["corridor"])
+    assert files(to) == earlier and sorted(p.name for p in tmp_path.iterdir()) == ["out", "pub"]
+    empty = tmp_path / "empty"
+    sweep.create(empty, planned := reproduce.experiments("smoke"), sweep.plan(planned, empty, None))
+    with pytest.raises(ValueError, match=f"^{empty} holds no finished experiment to publish$"):
+        reproduce.publish(empty, tmp_path / "pub2", "smoke")
+
+
+def test_publish_refuses_seeds_explored_while_the_claims_were_chosen(tmp_path, monkeypatch):
+    """The plan's seeds, and then the runs' own, among the seeds development explored: refused,
+    naming the experiment; its rows, with a seed its config does not name, refused on rebuild."""
+    corridor_parts(monkeypatch, {part: {"smoke": (2, 3)} for part in PARTS})
+    out = tmp_path / "out"
+    run_parts(out, ["corridor-apart"])
+    planned = reproduce.experiments("smoke", ["corridor-apart"])
+    explored = lambda scale, only=None: {n: {**c, "run": {**c["run"], "seeds": [3, 4]}} for n, c in planned.items()}
+    with monkeypatch.context() as m:
+        m.setattr(reproduce, "experiments", explored)
+        with pytest.raises(ValueError, match=r"^c3 \(constant on corridor, preset 'default'\): seeds 3-4 were explored"):
+            reproduce.publish(out, tmp_path / "to", "smoke", ["corridor-apart"])
+    config = json.loads((out / "c3" / "config.json").read_text())
+    (out / "c3" / "config.json").write_text(json.dumps({**config, "run": {**config["run"], "seeds": [5]}}))
+    with pytest.raises(ValueError, match=r"^c3 \(constant on corridor, preset 'default'\): seed 5 was explored"):
+        reproduce.publish(out, tmp_path / "to", "smoke", ["corridor-apart"])
+    (out / "c3" / "config.json").write_text(json.dumps(config))
+    to = tmp_path / "to"
+    reproduce.publish(out, to, "smoke", ["corridor-apart"])
+    rows = pd.read_csv(to / "data" / "c3.csv.xz")
+    rows.loc[0, "seed"] = 7
+    rows.to_csv(to / "data" / "c3.csv.xz", index=False)
+    with pytest.raises(ValueError, match=r"^c3 \(constant on corridor, preset 'default'\): seed 7 was explored"):
+        reproduce.rebuild(to)
+
+def test_the_kept_record_names_each_experiments_first_publisher_by_hand():
+    """Three parts: a kept since the first publication, b published by the second, c republished now.
+    The record keeps a's first publisher, adds b's (the second's own), drops c and empty entries."""
+    first = dict(command="cmd1", published="2000-01-01 00:00", commit="1" * 40, dirty=False)
+    earlier = dict(command="cmd2", published="2001-01-01 00:00", commit="2" * 40, dirty=True, scale="s",
+                   only=["a", "b", "c", "d"], experiments=["a1", "a2", "b1", "c1", "d1"],
+                   kept=[dict(parts=["a", "d"], experiments=["a1", "a2", "d1"], **first)])
+    assert published.kept_record(earlier, ["a", "b"], ["a1", "a2", "b1"]) == [
+        dict(parts=["a"], experiments=["a1", "a2"], **first),
+        dict(parts=["b"], experiments=["b1"], command="cmd2", published="2001-01-01 00:00", commit="2" * 40, dirty=True)]
+    assert published.kept_record(earlier, ["b"], ["b1"]) == [
+        dict(parts=["b"], experiments=["b1"], command="cmd2", published="2001-01-01 00:00", commit="2" * 40, dirty=True)]

@@ -666,9 +666,10 @@ def publish(out: Path, to: Path, scale: str, only=None) -> list:
     try:
         published.write_data(out, new, names, stamp, kept_from=to if kept else None, kept=kept)
         for figure in published.CHECKPOINT_FIGURES:
-            # a kept part's figure as it was published; the others' from the runs now
-            source = to if Path(figure).parts[0] in keep else out
-            if (source / figure).is_file():
+            # a kept part's figure as it was published; a part published now, its runs'; no other part's
+            part = Path(figure).parts[0]
+            source = to if part in keep else out
+            if (not only or part in only) and (source / figure).is_file():
                 (new / figure).parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(source / figure, new / figure)
         write_report(new, scale, 0.0, only)
