@@ -324,8 +324,11 @@ def test_publishing_a_part_into_an_earlier_publication_keeps_its_other_parts_as_
         "files (a trained agent's figures from what its checkpoint showed, kept beside them: Q̂ over the square, the "
         "F-16's trace, liquidation's holdings), but the push animation, kept as drawn at the run.")
     assert "## corridor: c1, c2" in (to / "REPORT.md").read_text()
+    stamp = json.loads((to / "data" / "manifest.json").read_text())    # the second publication, clean
+    stamp.update(dirty=False)
+    (to / "data" / "manifest.json").write_text(json.dumps(stamp))
 
-    second_stamp = {k: now[k] for k in published.PROVENANCE}
+    second_stamp = {k: stamp[k] for k in published.PROVENANCE}
     third = tmp_path / "third"                         # one more part: both earlier publishers are named
     run_parts(third, ["corridor-last"], "third")
     returned = reproduce.publish(third, to, "smoke", ["corridor-last"])
@@ -333,19 +336,33 @@ def test_publishing_a_part_into_an_earlier_publication_keeps_its_other_parts_as_
     kept = published.manifest(to)["kept"]
     assert kept == [earliest, dict(parts=["corridor-apart"], experiments=["c3"], **second_stamp)]
     head = (to / "REPORT.md").read_text().split("\n\n")[1]
-    assert f"(dirty), kept unchanged; those of corridor-apart (1 experiment) as `{second_stamp['command']}`" in head
+    assert head.endswith(f"(dirty), kept unchanged; those of corridor-apart (1 experiment) as `{second_stamp['command']}` "
+                         f"published them on {second_stamp['published']} at commit {second_stamp['commit']}, kept "
+                         "unchanged. Every number and figure below is computed from those files (a trained agent's "
+                         "figures from what its checkpoint showed, kept beside them: Q̂ over the square, the F-16's "
+                         "trace, liquidation's holdings), but the push animation, kept as drawn at the run.")
+    third_stamp = {k: published.manifest(to)[k] for k in published.PROVENANCE}
+    scales["corridor-apart"]["smoke"] = (2, 2)         # a part the publication holds, run and published again
+    fourth = tmp_path / "fourth"
+    run_parts(fourth, ["corridor-apart"], "fourth")
+    reproduce.publish(fourth, to, "smoke", ["corridor-apart"])
+    assert published.load(to, "c3").df.episode.max() == 2
+    assert (to / "corridor-apart" / "drawn.json").read_text() == "corridor-apart fourth"
+    assert published.manifest(to)["kept"] == [earliest, dict(parts=["corridor-last"], experiments=["c5"], **third_stamp)]
+    assert not (tmp_path / ".pub.old").exists() and not (tmp_path / ".pub.new").exists()
     rebuilt = files(to)
     (to / "REPORT.md").unlink()
     reproduce.rebuild(to)
     assert files(to) == rebuilt
 
     scales["corridor"]["smoke"] = (2, 5)               # a kept part's plan moved on: its rows are not the plan's
-    with pytest.raises(ValueError, match="the plan of c1, c2 changed since they were published: run them again"):
+    with pytest.raises(ValueError, match=r"^the plan of c1, c2 changed since they were published: run them again "
+                                         r"\(their parts' --only\) and publish those parts too$"):
         reproduce.publish(third, to, "smoke", ["corridor-last"])
-    with pytest.raises(ValueError, match="holds the smoke scale's publication of corridor, corridor-more, "
-                                         "corridor-apart: publishing corridor-last at the quick scale into it would "
-                                         "lose them; publish into another folder, or every part"):
-        reproduce.publish(third, to, "quick", ["corridor-last"])
+    with pytest.raises(ValueError, match="^the folder holds the smoke scale's publication of corridor, corridor-more: "
+                                         "publishing corridor-apart, corridor-last at the quick scale into it would "
+                                         "lose them; publish into another folder, or every part$"):
+        reproduce.publish(fourth, to, "quick", ["corridor-apart", "corridor-last"])
     assert files(to) == rebuilt
     scales["corridor"]["smoke"] = (2, 3)
     reproduce.publish(first, to, "smoke")               # every part: nothing kept
@@ -381,10 +398,13 @@ def test_publish_writes_only_the_named_parts_and_leaves_nothing_half_done(tmp_pa
     assert published.manifest(to)["experiments"] == ["c3"] and "kept" not in published.manifest(to)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "pub"] and not list(to.rglob("stale.txt"))
     earlier = files(to)
-    monkeypatch.setattr(reproduce, "write_report", lambda *a: 1 / 0)
-    with pytest.raises(ZeroDivisionError):
+    with monkeypatch.context() as m, pytest.raises(ZeroDivisionError):
+        m.setattr(reproduce, "write_report", lambda *a: 1 / 0)
         reproduce.publish(out, to, "smoke", ["corridor"])
     assert files(to) == earlier and sorted(p.name for p in tmp_path.iterdir()) == ["out", "pub"]
+    (out / "c2" / "episodes.csv").unlink()             # c2 unfinished: a partial publication, and said so
+    reproduce.publish(out, tmp_path / "partial", "smoke", ["corridor"])
+    assert "**Partial: 1 of 2 experiments have finished.**" in (tmp_path / "partial" / "REPORT.md").read_text()
     empty = tmp_path / "empty"
     sweep.create(empty, planned := reproduce.experiments("smoke"), sweep.plan(planned, empty, None))
     with pytest.raises(ValueError, match=f"^{empty} holds no finished experiment to publish$"):

@@ -653,7 +653,7 @@ def publish(out: Path, to: Path, scale: str, only=None) -> list:
         check_reportable(load_run(out / name).config, name, publication=True)
     if keep:               # the publication's parts in their earlier order, those new to it after
         theirs = earlier["only"] or [part.name for part, _ in reproductions()]
-        only = [p for p in theirs if p in keep or p in only] + [p for p in only if p not in theirs]
+        only = theirs + [p for p in only if p not in theirs]
     # the code that publishes, as committed (runner.provenance: its files unchanged)
     stamp = {**published.stamp(scale, only, f"python scripts/reproduce.py --scale {scale}"
                                               + (" --only " + " ".join(only) if only else "")),
