@@ -354,6 +354,16 @@ def test_publishing_a_part_into_an_earlier_publication_keeps_its_other_parts_as_
     (to / "REPORT.md").unlink()
     reproduce.rebuild(to)
     assert files(to) == rebuilt
+    stamp = published.manifest(to)
+    for dirty, mark in ((True, " (dirty)"), (False, "")):       # the publisher's own mark; a manifest without
+        (to / "data" / "manifest.json").write_text(json.dumps(   # its plan (older ones) is its experiments
+            {**{k: v for k, v in stamp.items() if k != "planned"}, "dirty": dirty}))
+        reproduce.rebuild(to)
+        text = (to / "REPORT.md").read_text()
+        assert f"at commit {stamp['commit']}{mark}; those of corridor, corridor-more" in text and "Partial" not in text
+    (to / "data" / "manifest.json").write_text(json.dumps(stamp, indent=1) + "\n")
+    reproduce.rebuild(to)
+    assert files(to) == rebuilt
 
     scales["corridor"]["smoke"] = (2, 5)               # a kept part's plan moved on: its rows are not the plan's
     with pytest.raises(ValueError, match=r"^the plan of c1, c2 changed since they were published: run them again "
