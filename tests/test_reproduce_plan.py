@@ -12,7 +12,8 @@ ROOT = Path(__file__).resolve().parent.parent
 # the parts reproduced apart, each also a sweep file in configs/ (issue: "each experiment as a part
 # of reproduce and as a sweep file")
 COMMITTED = {"f16-model": "configs/f16-model.toml", "f16-model-gwh14": "configs/f16-model-gwh14.toml",
-             "square-paper-tuned": "configs/square-paper-tuned.toml"}
+             "square-paper-tuned": "configs/square-paper-tuned.toml",
+             "liquidation-reward": "configs/liquidation-reward.toml"}
 
 
 @pytest.mark.parametrize("scale", reproduce.SCALES)

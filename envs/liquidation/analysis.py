@@ -232,6 +232,8 @@ def holdings_figure(runs, labels, out: Path, episodes: int = 10, title: str = ""
 
 # ------------------------------------------------------------ the reproduction (scripts/reproduce.py)
 TITLE = "Optimal liquidation (the seed report's 4.4; AC00)"
+# experiments reproduced apart: each its own `reproduce --only` name, section and claims (as f16's APART)
+APART = {"liquidation-reward": "one_reward"}
 # the README's paragraph on the domain: words, no numbers (those come from the data)
 SUMMARY = ("The Almgren-Chriss closed forms checked by simulation, and DGPQ, DDPG, TD3 and the course's own DDPG"
            ' against the optimal schedule and TWAP; the `impact` reward and the utility-ratio reward use the AC '
