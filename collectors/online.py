@@ -127,8 +127,8 @@ class OnlineCollector:
             self.steps += active
             self.env_steps_done += active
             self.ret += torch.where(active, r, 0.0)
-            self.wall += active * (dt / n_active)
-            self.cpu += active * (dc / n_active)
+            self.wall += active.to(self.wall.dtype) * (dt / n_active)   # float64: a bool mask times a float is float32
+            self.cpu += active.to(self.cpu.dtype) * (dc / n_active)
             ended = nxt.get("done").reshape(S) & active
             new_rows = []
             if ended.any():

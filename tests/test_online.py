@@ -54,17 +54,19 @@ def plain(df):
 
 
 class Clock:
-    """perf_counter +1 s and process_time +0.5 s a call: every batched step takes 1 s wall, 0.5 s CPU."""
+    """perf_counter +1 s and process_time +0.5 s a call (or ``wall`` and ``cpu``): every batched step
+    takes 1 s wall, 0.5 s CPU."""
 
-    def __init__(self):
+    def __init__(self, wall=1.0, cpu=0.5):
         self.wall = self.cpu = 0.0
+        self.wall_step, self.cpu_step = wall, cpu
 
     def perf_counter(self):
-        self.wall += 1.0
+        self.wall += self.wall_step
         return self.wall
 
     def process_time(self):
-        self.cpu += 0.5
+        self.cpu += self.cpu_step
         return self.cpu
 
 
@@ -95,6 +97,14 @@ def test_wall_and_cpu_time_are_shared_among_the_active_seeds(monkeypatch):
     quiet = collector(time_steps=False)
     quiet.run()
     assert quiet.step_seconds == []
+
+
+def test_times_are_summed_in_float64(monkeypatch):
+    """0.1 s a step, split between two seeds: 0.05 is not a float32 number, so a sum made in float32
+    (a bool mask times a float) is off by ~1e-9; seed 3's first episode is its first 3 steps."""
+    monkeypatch.setattr(online, "time", Clock(wall=0.1, cpu=0.1))
+    df = collector().run()
+    assert abs(df.wall_s[0] - 0.15) < 1e-15 and abs(df.cpu_s[0] - 0.15) < 1e-15
 
 
 def test_the_agent_observes_every_step_with_the_seeds_active_in_it():
