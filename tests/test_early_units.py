@@ -16,8 +16,7 @@ def own_help(tmp_path, monkeypatch):
     path = tmp_path / "help.json"
     path.write_text(json.dumps({"train": {"trl-dgpq": HELP.replace("usage: x", "usage: trl-dgpq train"),
                                           "script": HELP}}))
-    monkeypatch.setattr(early, "HELP_FILE", path)
-    monkeypatch.setattr(commands, "ENTRY", None)
+    monkeypatch.setattr(early, "HELP_FILE", path)     # ENTRY: conftest's script_entry
     return path
 
 

@@ -43,7 +43,6 @@ def test_an_unknown_command_is_one_line_and_exit_2(capsys):
 
 def test_a_command_gets_its_arguments_under_the_entry_points_name(monkeypatch):
     ran = []
-    monkeypatch.setattr(trl_dgpq.commands, "ENTRY", trl_dgpq.commands.ENTRY)
     monkeypatch.setattr(trl_dgpq.commands, "run", lambda name, rest: ran.append((name, rest, trl_dgpq.commands.ENTRY)) or 7)
     assert entry.main(["report", "a", "--budget", "3"]) == 7
     assert ran == [("report", ["a", "--budget", "3"], "trl-dgpq")]

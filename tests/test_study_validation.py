@@ -12,13 +12,9 @@ from trl_dgpq.collectors.experiment import resolve_config
 from trl_dgpq.study import validation as validation_module
 from trl_dgpq.study.study import Study
 
-SQUARE = {"env": "square", "agent": "dgpq", "episodes": "4", "seeds": "1000-1001"}
+from tests.test_study_parts import SQUARE, open_study
 
 pytestmark = pytest.mark.usefixtures("own_tuned_file")   # never the checkout's tuned.json
-
-
-def open_study(tmp_path, given=None, name="s", tune=None):
-    return Study.open(tmp_path / name, None, {**SQUARE, **(given or {})}, tune or {})
 
 
 def add(study, value, setting, state=TrialState.COMPLETE, first=False, key="lipschitz"):
