@@ -34,8 +34,8 @@ def corridor_domain(monkeypatch, seeds=(0, 1)):
     return analysis
 
 
-def run_all(out):
-    planned = reproduce.experiments("smoke")
+def run_all(out, only=None):
+    planned = reproduce.experiments("smoke", only)
     sweep.create(out, planned, jobs := sweep.plan(planned, out, None))
     for job in jobs:
         folder = runner.RunFolder(job.folder)
@@ -43,6 +43,11 @@ def run_all(out):
         runner.start(job.config, folder, progress=False)
         sweep.merge(out, job.experiment, [job])
     return planned
+
+
+def files(folder) -> dict:
+    """Every file under ``folder`` and its bytes."""
+    return {p: p.read_bytes() for p in Path(folder).rglob("*") if p.is_file()}
 
 
 def test_publish_keeps_the_rows_and_rebuilds_every_file_from_them_alone(tmp_path, monkeypatch, capsys):
@@ -80,13 +85,13 @@ def test_publish_keeps_the_rows_and_rebuilds_every_file_from_them_alone(tmp_path
     assert (to / "sections" / "corridor.md").is_file()
     # no runs/: the rebuild gives every file back, byte for byte
     shutil.rmtree(out)
-    before = {p: p.read_bytes() for p in to.rglob("*") if p.is_file()}
+    before = files(to)
     for p in ("REPORT.md", "claims.md", "results.csv", "summary.md"):
         (to / p).unlink()
     capsys.readouterr()
     assert report.main([str(to)]) == 0
     assert "wrote" in capsys.readouterr().out
-    assert {p: p.read_bytes() for p in to.rglob("*") if p.is_file()} == before
+    assert files(to) == before
 
 
 def test_publish_refuses_runs_on_seeds_outside_the_reporting_ones(tmp_path, monkeypatch):
@@ -269,19 +274,10 @@ def corridor_parts(monkeypatch, scales: dict):
 def run_parts(out, only, figures="") -> None:
     """Every experiment of the ``only`` parts run in the sweep ``out``, and the checkpoint figures'
     kept data as each part's folder would hold them (their text: the part's name and ``figures``)."""
-    planned = reproduce.experiments("smoke", only)
-    sweep.create(out, planned, jobs := sweep.plan(planned, out, None))
-    for job in jobs:
-        runner.RunFolder(job.folder).path.mkdir(parents=True)
-        runner.start(job.config, runner.RunFolder(job.folder), progress=False)
-        sweep.merge(out, job.experiment, [job])
+    run_all(out, only)
     for part in PARTS:
         (out / part).mkdir()
         (out / part / "drawn.json").write_text(f"{part} {figures}")
-
-
-def files(folder) -> dict:
-    return {p: p.read_bytes() for p in Path(folder).rglob("*") if p.is_file()}
 
 
 def test_publishing_a_part_into_an_earlier_publication_keeps_its_other_parts_as_published(tmp_path, monkeypatch):

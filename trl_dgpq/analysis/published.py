@@ -76,9 +76,8 @@ def write_data(out: Path, to: Path, names: list, manifest: dict, kept_from=None,
         config["jobs"] = job_commits(folder)
         (data / f"{name}.json").write_text(json.dumps(config, indent=1, sort_keys=True) + "\n")
         written += [rows, data / f"{name}.json"]
-    every = set(names) | set(kept)
-    order = [n for n in manifest.get("planned", []) if n in every] + [n for n in [*names, *kept] if
-                                                                      n not in manifest.get("planned", [])]
+    planned, every = manifest.get("planned", []), {*names, *kept}
+    order = [n for n in planned if n in every] + [n for n in [*names, *kept] if n not in planned]
     (data / MANIFEST).write_text(json.dumps({**manifest, "experiments": order}, indent=1) + "\n")
     return written + [data / MANIFEST]
 

@@ -594,13 +594,18 @@ def plan_text(planned: dict, publication: Path, max_minutes: Optional[float] = N
             f"times per seed-episode from {publication}, CPU time where recorded, else wall time on 2 loaded cores)\n")
 
 
+def parts_of(manifest: dict) -> list:
+    """A publication's parts: its ``only``, or every part where that is empty."""
+    return manifest["only"] or [part.name for part, _ in reproductions()]
+
+
 def kept_parts(earlier: dict, scale: str, only) -> list:
     """The parts of an earlier publication (its manifest) that publishing ``only`` into its folder
     keeps as they are: those it holds that ``only`` does not name; none where ``only`` is every part.
     Refused at another scale: the parts of one publication share its scale."""
     if earlier is None or not only:
         return []
-    keep = [p for p in (earlier["only"] or [part.name for part, _ in reproductions()]) if p not in only]
+    keep = [p for p in parts_of(earlier) if p not in only]
     if keep and earlier["scale"] != scale:
         raise ValueError(f"the folder holds the {earlier['scale']} scale's publication of {', '.join(keep)}: "
                          f"publishing {', '.join(only)} at the {scale} scale into it would lose them; publish "
@@ -652,7 +657,7 @@ def publish(out: Path, to: Path, scale: str, only=None) -> list:
         check_reportable(planned[name], name, publication=True)
         check_reportable(load_run(out / name).config, name, publication=True)
     if keep:               # the publication's parts in their earlier order, those new to it after
-        theirs = earlier["only"] or [part.name for part, _ in reproductions()]
+        theirs = parts_of(earlier)
         only = theirs + [p for p in only if p not in theirs]
     # the code that publishes, as committed (runner.provenance: its files unchanged)
     stamp = {**published.stamp(scale, only, f"python scripts/reproduce.py --scale {scale}"
