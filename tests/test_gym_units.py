@@ -42,6 +42,9 @@ def test_numpy_values_come_back_with_their_dtype_and_as_copies():
     plain = to_plain(text)
     assert plain == {"ndarray_list": [["a", "bc"], ["d", "e"]], "dtype": "<U2", "shape": [2, 2]}
     assert (from_plain(plain) == text).all() and from_plain(plain).dtype == text.dtype
+    frozen = np.array([[b"S", b"F"], [b"H", b"G"]])          # FrozenLake's map: bytes, nested in a list
+    back = from_plain(to_plain([np.bool_(True), frozen]))
+    assert back[0] is np.True_ and back[1].dtype == frozen.dtype and back[1].tolist() == frozen.tolist()
     empty = np.zeros((0, 2), dtype=object)
     assert from_plain(to_plain(empty)).shape == (0, 2)
 
