@@ -178,9 +178,5 @@ def test_the_worked_examples_corridor_and_constant():
     df = run_experiment(resolve_config(env="corridor", agent="constant", length=11, slip=0.25, max_steps=200,
                                        seeds=list(range(8)), episodes=10), progress=False)
     assert 16 < df.steps.mean() < 24
-    with pytest.raises(ValueError, match="no action 'up'"):
+    with pytest.raises(ValueError, match="no action 'up'"):      # the refusals: test_random_constant's
         resolve_config(env="corridor", agent="constant", action="up")
-    with pytest.raises(ValueError, match="not among this env's 2 actions"):
-        resolve_config(env="corridor", agent="constant", action="2")
-    with pytest.raises(ValueError, match="constant needs discrete actions"):
-        resolve_config(env="liquidation", agent="constant")

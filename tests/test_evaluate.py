@@ -13,7 +13,7 @@ from trl_dgpq.agents.dqn import DQN, DQNConfig
 from trl_dgpq.collectors.evaluate import evaluate
 from trl_dgpq.collectors.runner import RunError
 from trl_dgpq.commands import evaluate as evaluate_command
-from trl_dgpq.commands import prog, train
+from trl_dgpq.commands import train
 from trl_dgpq.envs.f16.env import F16Env
 from trl_dgpq.envs.gym.env import gym_env
 
@@ -126,56 +126,12 @@ def test_evaluation_acts_by_exploit_never_by_the_exploring_act(tmp_path, monkeyp
     assert list(df.seed) == [0, 0, 1, 1] and list(df.episode) == [1, 2, 1, 2]
     assert capsys.readouterr().err == ""
 
+
 def test_a_folder_without_a_checkpoint_is_one_line(tmp_path, capsys):
     with pytest.raises(RunError, match="holds no run with a checkpoint"):
         evaluate(tmp_path)
     assert evaluate_command.main([str(tmp_path), "--no-progress"]) == 2
     assert "error:" in capsys.readouterr().err
-
-
-
-def test_ctrl_c_in_evaluate_says_which_runs_got_their_eval_csv(tmp_path, capsys, monkeypatch):
-    """Ctrl-C while the second of three runs is evaluated: one line naming the run written and the
-    two not, exit 130; eval.csv is whole or absent."""
-    runs = [trained(tmp_path / name, "--env", "corridor", "--agent", "constant", "--seeds", "0,1", "--episodes", 2)
-            for name in ("a", "b", "c")]
-    from trl_dgpq.collectors import evaluate as module
-    real, calls = module.evaluate, []
-
-    def interrupted_second(folder, *args, **kwargs):
-        calls.append(folder)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return real(folder, *args, **kwargs)
-    monkeypatch.setattr(module, "evaluate", interrupted_second)
-    capsys.readouterr()
-    assert evaluate_command.main([*map(str, runs), "--no-progress"]) == 130
-    assert capsys.readouterr().err == (f"{prog('evaluate')}: interrupted while evaluating {runs[1]}: wrote eval.csv for "
-                                       f"{runs[0]}; no eval.csv written for {runs[1]}, {runs[2]}\n")
-    assert [(r / "eval.csv").exists() for r in runs] == [True, False, False]
-
-
-def test_the_evaluate_command_compares_with_each_seeds_last_n_training_episodes(tmp_path, capsys):
-    """A budget of 60 steps on the slippery corridor: seed 0 ran 7 episodes, seed 1 6. The
-    corridor's measure (steps per episode) set by hand: 1 in seed 0's last 3 episodes, 3 in seed
-    1's, 100 before. With --episodes 3 the training side is the mean of those 6 episodes: 2 (the
-    episodes after the longest seed's 4th would give 1.8, one episode more per seed 26.5)."""
-    out = trained(tmp_path, "--env", "corridor", "--agent", "constant", "--action", "right", "--slip", 0.1,
-                  "--seeds", "0,1", "--env-steps", 60)
-    rows = pd.read_csv(out / "episodes.csv")
-    assert rows.groupby("seed").size().tolist() == [7, 6]
-    last = {0: (5, 1), 1: (4, 3)}   # seed: (the first of its last 3 episodes, their steps)
-    rows["steps"] = [last[s][1] if e >= last[s][0] else 100 for s, e in zip(rows.seed, rows.episode)]
-    rows.to_csv(out / "episodes.csv", index=False)
-    capsys.readouterr()
-    assert evaluate_command.main([str(out), "--episodes", "3", "--no-progress"]) == 0
-    assert "(mean over each seed's last 3 training episodes: 2);" in capsys.readouterr().out
-    # --out: eval.csv elsewhere (a run one may not write into), the run's folder untouched
-    (out / "eval.csv").unlink()
-    elsewhere = tmp_path / "evaluated here"
-    assert evaluate_command.main([str(out), "--episodes", "3", "--no-progress", "--out", str(elsewhere)]) == 0
-    assert f"wrote {elsewhere / 'eval.csv'}" in capsys.readouterr().out
-    assert (elsewhere / "eval.csv").is_file() and not (out / "eval.csv").exists()
 
 
 def test_the_square_qhat_grid_is_the_lipschitz_envelope_by_hand():

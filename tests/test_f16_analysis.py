@@ -405,6 +405,11 @@ def test_optimism_compares_qhat_with_the_lower_bound_per_seed(tmp_path, monkeypa
         assert all(sum(g) == 6 for g in df.greedy)           # 3 episodes x 2 decisions
         assert df.q_start.tolist() == [[bound] * 3] * 2
         assert list(df.attrs["slopes"].index) == ["up", "hold", "down"]
+    # above Q̂ at 2 of the 6 states: a share of exactly 1/3 (float64, not float32's 0.33333334)
+    monkeypatch.setattr(analysis, "lqr_q", lambda cfg, s, gamma, rollouts:
+                        torch.where(torch.arange(len(s))[:, None] % 3 == 0, 1e6, -1e6).expand(-1, 3))
+    df = analysis.optimism(out, "hold", episodes=3, rollouts=1)
+    assert df.below_up.tolist() == [1 / 3, 1 / 3]
 
 
 def test_optimism_of_a_shaped_run_compares_qhat_with_q_minus_the_potential(tmp_path, monkeypatch):

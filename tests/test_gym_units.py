@@ -11,7 +11,7 @@ import torch
 from torchrl.data import Bounded, Unbounded
 
 from trl_dgpq.envs.gym import env as gym_module
-from trl_dgpq.envs.gym.env import (BOUNDS, GymConfig, _attributes, _layers, from_plain, gym_env, to_plain)
+from trl_dgpq.envs.gym.env import (GymConfig, _attributes, _layers, from_plain, gym_env, to_plain)
 from trl_dgpq.rng import ENV_STREAM, SeedStreams, stream_id
 
 
@@ -42,6 +42,9 @@ def test_numpy_values_come_back_with_their_dtype_and_as_copies():
     plain = to_plain(text)
     assert plain == {"ndarray_list": [["a", "bc"], ["d", "e"]], "dtype": "<U2", "shape": [2, 2]}
     assert (from_plain(plain) == text).all() and from_plain(plain).dtype == text.dtype
+    frozen = np.array([[b"S", b"F"], [b"H", b"G"]])          # FrozenLake's map: bytes, nested in a list
+    back = from_plain(to_plain([np.bool_(True), frozen]))
+    assert back[0] is np.True_ and back[1].dtype == frozen.dtype and back[1].tolist() == frozen.tolist()
     empty = np.zeros((0, 2), dtype=object)
     assert from_plain(to_plain(empty)).shape == (0, 2)
 
@@ -93,7 +96,9 @@ def test_the_bounds_are_the_given_ones_then_the_documented_then_gymnasiums():
     low, high = cartpole.bounds(GymConfig(obs_low=(-1, -2, -3, -4), obs_high=(1, 2, 3, 4)))
     assert low.tolist() == [-1, -2, -3, -4] and high.tolist() == [1, 2, 3, 4] and low.dtype == torch.float64
     low, high = cartpole.bounds(GymConfig())
-    assert (low.tolist(), high.tolist()) == tuple(list(b) for b in BOUNDS["CartPole-v1"])
+    # the episode's ends (x +-2.4, theta +-12 degrees) and the velocities a surviving pole reaches
+    assert low.tolist() == pytest.approx([-2.4, -3.0, -12 * math.pi / 180, -3.5], abs=1e-4)
+    assert high.tolist() == pytest.approx([2.4, 3.0, 12 * math.pi / 180, 3.5], abs=1e-4)
     low, high = car.bounds(GymConfig())
     assert low.tolist() == pytest.approx([-1.2, -0.07]) and high.tolist() == pytest.approx([0.6, 0.07])
 

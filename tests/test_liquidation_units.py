@@ -74,10 +74,12 @@ def test_an_impossible_market_is_refused_in_words():
 
 
 def test_any_schedules_cost_by_the_sums():
-    """Trades 2, 0, 4 (the zero trade pays no spread, the one share trade does) in the tau = 2 market."""
+    """Trades 2, 0, 4 (the zero trade pays no spread, the one share trade does) in the tau = 2 market;
+    a buy (-1) pays the spread as a sale does (eps sign(n) n), as the env charges it."""
     m = market(0.3)
-    for n, held in (([2.0, 0.0, 4.0], [4.0, 4.0, 0.0]), ([1.0, 5.0, 0.0], [5.0, 0.0, 0.0])):
-        e = 0.05 * sum(v for v in n if v > 0) + 0.5 * 0.02 * 36 + (0.08 / 2) * sum(v * v for v in n)
+    for n, held in (([2.0, 0.0, 4.0], [4.0, 4.0, 0.0]), ([1.0, 5.0, 0.0], [5.0, 0.0, 0.0]),
+                    ([7.0, -1.0, 0.0], [-1.0, 0.0, 0.0])):
+        e = 0.05 * sum(abs(v) for v in n) + 0.5 * 0.02 * 36 + (0.08 / 2) * sum(v * v for v in n)
         v = 0.5 * 2 * sum(h * h for h in held)
         got = m.cost(torch.tensor(n, dtype=torch.float32))
         assert got == pytest.approx(dict(expected_shortfall=e, variance=v, utility=e + 0.3 * v), rel=1e-6)

@@ -2,14 +2,12 @@
 evaluate (issue 21, item 1)."""
 import pickle
 
-import numpy as np
 import pytest
 import torch
 
 from trl_dgpq.collectors.evaluate import evaluate
 from trl_dgpq.collectors.runner import RunError
 from trl_dgpq.commands import train
-from trl_dgpq.envs.gym.env import from_plain, to_plain
 
 
 class Planted:
@@ -56,20 +54,3 @@ def test_a_planted_pickle_is_refused_by_resume_and_evaluate_without_running(wher
         assert stop.value.code == 2 and "error:" in capsys.readouterr().err
         evaluate(out, episodes=1)   # evaluation never reads the training env's state
     assert not marker.exists()
-
-
-def test_plain_data_round_trips_exactly():
-    g = np.random.default_rng(7)
-    g.random(3)
-    value = {"state": np.array([0.1, -2.0], dtype=np.float32), "t": (1, 2.5, None, "s", np.int64(4)),
-             "rng": g, 3: [np.bool_(True), np.array([[b"S", b"F"]])]}
-    plain = to_plain(value)
-    back = from_plain(plain)
-    assert back["state"].dtype == np.float32 and np.array_equal(back["state"], value["state"])
-    assert back["t"] == value["t"] and type(back["t"][4]) is np.int64
-    assert back["rng"].random() == g.random()                 # the same stream from here on
-    assert back[3][0] is np.True_ and back[3][1].tolist() == [[b"S", b"F"]]
-    with pytest.raises(ValueError, match="plain data"):
-        to_plain(object())
-    with pytest.raises(ValueError, match="bit generator"):
-        from_plain({"generator": {"bit_generator": "os.system"}})

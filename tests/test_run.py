@@ -347,20 +347,6 @@ def test_a_run_whose_storage_would_outgrow_its_memory_stops_checkpointed_in_one_
 
 
 
-def test_max_memory_counts_what_the_process_holds_besides_the_growth(monkeypatch):
-    """--max-memory 1 MiB, storage to grow by 400 KiB: a process holding 500 KiB goes on (900 KiB),
-    one holding 700 KiB stops (1,100 KiB), though the growth alone fits either way."""
-    from types import SimpleNamespace
-
-    from trl_dgpq.collectors import experiment
-    monkeypatch.setattr(experiment, "available_memory", lambda: None)
-    check = experiment.memory_guard(SimpleNamespace(growth_bytes=lambda: 400 * 2**10), max_gib=2**-10)
-    monkeypatch.setattr(experiment, "resident_bytes", lambda: 500 * 2**10)
-    check()
-    monkeypatch.setattr(experiment, "resident_bytes", lambda: 700 * 2**10)
-    with pytest.raises(experiment.MemoryLimit, match="--max-memory"):
-        check()
-
 def test_storage_growth_is_estimated_by_hand():
     from trl_dgpq.qhat import LipschitzQ
     q = LipschitzQ(3, 2, 4, 1.0, 0.0, capacity=2)

@@ -1041,23 +1041,23 @@ def test_max_job_minutes_splits_each_experiment_estimated_over_it():
 
 
 def test_reproduce_runs_a_split_experiment_in_its_jobs_and_keeps_them_when_continued(tmp_path, capsys, monkeypatch):
-    """f16-pd (2 seeds) estimated at an hour: --max-job-minutes 40 runs it as two jobs of a seed
-    each, whose rows are the experiment's; --plan says so; continued with another limit, the run
-    keeps the jobs it began with."""
-    # the estimate stubbed (the published rows' times are test_reproduce_plan's): an hour for f16-pd
+    """square-random (4 seeds) estimated at an hour: --max-job-minutes 40 runs it as two jobs of two
+    seeds each, whose rows are the experiment's; --plan says so; continued with another limit, the
+    run keeps the jobs it began with."""
+    # the estimate stubbed (the published rows' times are test_reproduce_plan's): an hour for square-random
     monkeypatch.setattr(reproduce, "estimate", lambda planned, pub: [
-        (n, 3600.0 if n == "f16-pd" else 10.0, "measured") for n in planned])
-    args = ["--scale", "quick", "--only", "f16", "--workers", "1", "--experiments", "f16-pd"]
+        (n, 3600.0 if n == "square-random" else 10.0, "measured") for n in planned])
+    args = ["--scale", "quick", "--only", "square", "--workers", "1", "--experiments", "square-random"]
     assert reproduce.main(args + ["--plan", "--max-job-minutes", "40"]) == 0
-    assert "  f16-pd: 2 seeds x 20, ~60.0 min in 2 jobs (" in capsys.readouterr().out
+    assert "  square-random: 4 seeds x 30, ~60.0 min in 2 jobs (" in capsys.readouterr().out
     out = tmp_path / "r"
     assert reproduce.main(args + ["--out", str(out), "--max-job-minutes", "40"]) == 0
-    jobs = sorted((out / "f16-pd" / "jobs").iterdir())
-    assert [json.loads((j / "config.json").read_text())["run"]["seeds"] for j in jobs] == [[10], [11]]
-    rows = pd.read_csv(out / "f16-pd" / "episodes.csv")
-    assert sorted(set(rows.seed)) == [10, 11] and len(rows) == 40                 # 2 seeds x 20 episodes
+    jobs = sorted((out / "square-random" / "jobs").iterdir())
+    assert [json.loads((j / "config.json").read_text())["run"]["seeds"] for j in jobs] == [[10, 11], [12, 13]]
+    rows = pd.read_csv(out / "square-random" / "episodes.csv")
+    assert sorted(set(rows.seed)) == [10, 11, 12, 13] and len(rows) == 120           # 4 seeds x 30 episodes
     assert reproduce.main(args + ["--out", str(out), "--max-job-minutes", "1000"]) == 0
-    assert sorted(p.name for p in (out / "f16-pd" / "jobs").iterdir()) == ["j000", "j001"]
+    assert sorted(p.name for p in (out / "square-random" / "jobs").iterdir()) == ["j000", "j001"]
     with pytest.raises(SystemExit):
         reproduce.main(args + ["--plan", "--max-job-minutes", "0"])
     assert "must be a number of minutes > 0, got '0'" in capsys.readouterr().err

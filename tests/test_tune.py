@@ -621,12 +621,6 @@ def test_validate_runs_the_best_trials_and_the_first_again_on_other_seeds(tmp_pa
     again = optuna.load_study(study_name="study", storage=f"sqlite:///{out / 'study.db'}").user_attrs["validation"]
     assert again["seeds"] == [1007] and set(again["values"]) == set(stored["values"])  # other seeds: run again
     assert json.loads((out / "validation" / "0000" / "config.json").read_text())["run"]["seeds"] == [1007]
-    with pytest.raises(SystemExit):
-        tune.main(["--out", str(out), "--validate", "1", "--validation-seeds", "1000-1001"])
-    assert "the study's own tuning seeds" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        tune.main(["--out", str(out), "--validate", "1", "--validation-seeds", "5-6"])
-    assert "reporting seeds" in capsys.readouterr().err
 
 
 def test_bad_validation_seeds_are_refused_before_any_trial(tmp_path, capsys):
@@ -782,38 +776,6 @@ def test_a_maximised_objective_calls_the_highest_trial_best(tmp_path, objective,
     study.write_preset()
     entry = json.loads(path.read_text())["f16"]["dgpq"][name]
     assert (entry["provenance"]["trial"], entry["preset"]["agent"]["lipschitz"]) == validated
-
-
-@pytest.mark.parametrize("objective, k, picked, on_validation", [
-    ("measure", 1, [1, 0], {1: 6.0, 0: 8.0}),     # the best (9) loses to the base preset (5) on other seeds
-    ("report", 1, [3, 0], {3: 6.0, 0: 4.0}),      # the best (3) loses to the base preset (5) on other seeds
-    ("measure", 3, [1, 2, 0], {1: 6.0, 2: 7.0, 0: 8.0}),   # the base preset among the 3 best: run once
-])
-@pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
-def test_validate_reruns_the_base_presets_trial_besides_the_k_best(tmp_path, monkeypatch, objective, k, picked,
-                                                                    on_validation):
-    """--validate K reruns the K best trials in the study's direction and trial 0 (marked first:
-    the base preset's) even when it is not among them, on the validation seeds with each trial's
-    settings; so when the tuning-seed winner loses there, --write-preset falls back to the base
-    preset's settings (lipschitz 1). Runs and their scores are stubbed: trial n scores
-    ``on_validation[n]``."""
-    study = f16_study(tmp_path, objective)
-    ran = []
-    monkeypatch.setattr(Study, "run_to_end", staticmethod(lambda path, config: ran.append((int(path.name), config))))
-    monkeypatch.setattr("trl_dgpq.study.validation.load_run", lambda path: path)
-    monkeypatch.setattr("trl_dgpq.study.validation.stage", lambda run, lengths: run)
-    monkeypatch.setattr(Objective, "value", lambda self, run: on_validation[int(run.name)])
-    lines = []
-    assert study.validate(k, [1005, 1006], log=lines.append) == on_validation
-    assert [n for n, _ in ran] == picked
-    for n, config in ran:
-        assert config["run"]["seeds"] == [1005, 1006] and config["agent"]["lipschitz"] == n + 1.0
-    assert lines[-1].endswith("(5 on the tuning seeds, the base preset)") and lines[-1].startswith("trial 0: ")
-    name, path = study.write_preset()
-    entry = json.loads(path.read_text())["f16"]["dgpq"][name]
-    assert entry["provenance"]["trial"] == 0 and entry["preset"]["agent"]["lipschitz"] == 1.0
-    assert entry["provenance"]["validation"] == {"seeds": [1005, 1006], "value": 8.0 if objective == "measure" else 4.0,
-                                                 "trials": sorted(picked)}
 
 
 @pytest.mark.parametrize("agent, flag, value, where, searched", [

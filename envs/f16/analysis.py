@@ -471,7 +471,7 @@ def optimism(folder: Path, on: str = "hold", episodes: int = 8, rollouts: int = 
         below = qhat[:, i] < q - agent.cfg.eps1
         short = (q - qhat[:, i])[below]
         rows.append(dict(seed=seed, L_Q=agent.cfg.lipschitz,
-                         **{f"below_{n}": float(below[:, a].float().mean()) for a, n in enumerate(("up", "hold", "down"))},
+                         **{f"below_{n}": float(below[:, a].double().mean()) for a, n in enumerate(("up", "hold", "down"))},
                          median_shortfall=float(short.median()) if len(short) else 0.0,
                          greedy=torch.bincount(qhat[:, i].argmax(1), minlength=3).tolist(),
                          lqr_best=torch.bincount(q.argmax(1), minlength=3).tolist(), pulse_gap=gap,

@@ -107,10 +107,10 @@ class ACModel:
 
     def cost(self, trades) -> dict:
         """Expected shortfall, variance and E + lambda V of any schedule ``trades`` (N,)
-        that sells every share, by the sums (not the closed forms)."""
+        that sells every share, by the sums (not the closed forms); a negative trade is a buy,
+        and pays the spread too (eps sign(n) n = eps |n|), as in the env."""
         n = torch.as_tensor(trades, dtype=torch.float64)
         x = n.sum() - n.cumsum(0)
-        # the spread on what is sold: eps max(n, 0) (eps times a bool mask would be a float32 tensor)
-        e = self.eps * n.clamp(min=0.0).sum() + 0.5 * self.gamma * n.sum() ** 2 + self.eta_tilde / self.tau * (n * n).sum()
+        e = self.eps * n.abs().sum() + 0.5 * self.gamma * n.sum() ** 2 + self.eta_tilde / self.tau * (n * n).sum()
         v = self.sigma2 * self.tau * (x * x).sum()
         return dict(expected_shortfall=float(e), variance=float(v), utility=float(e + self.lam * v))
