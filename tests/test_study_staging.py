@@ -26,7 +26,8 @@ def study(tmp_path, monkeypatch):
     s.objective = SimpleNamespace(direction="minimize", name="score", value=lambda run: run)
     s.made = []
     monkeypatch.setattr(s, "tidy", lambda path: s.made.append(("tidied", path)))
-    monkeypatch.setattr(s, "retry", lambda study, trial, reason: s.made.append(("retried", trial.number, reason)))
+    monkeypatch.setattr(s, "retry", lambda study, trial, reason: s.made.append(
+        ("retried", getattr(study, "study_name", None), trial.number, reason)))
     return s
 
 
@@ -94,7 +95,7 @@ def test_a_signal_hands_the_trial_to_a_retry_and_stops(study, monkeypatch, stopp
     with pytest.raises(Stopped) as err:
         ended(study, monkeypatch, stopped)
     assert err.value.signum == signal.SIGTERM
-    assert study.made == [("retried", 0, "interrupted by SIGTERM")]
+    assert study.made == [("retried", study.load().study_name, 0, "interrupted by SIGTERM")]   # the trial's study
     assert study.load().trials[0].state == TrialState.RUNNING          # (retry stubbed: it would fail it)
 
 
