@@ -106,21 +106,8 @@ def test_the_first_signal_is_the_one_a_stop_reports(study, monkeypatch):
     assert err.value.signum == signal.SIGINT and stop["signum"] == signal.SIGINT
 
 
-def test_a_signal_while_the_trial_is_told_waits_until_it_is_recorded_and_tidied(study, monkeypatch):
-    """The signal arrives as the line is logged (inside the held block): the trial is still told
-    and its folder tidied, then the study stops."""
-    loaded = study.load()
-    trial = loaded.ask()
-    monkeypatch.setattr(study, "run_stages", lambda t: t.set_user_attr("settings", {}) or 1.0)
-    stop = {"signum": None, "held": False}
-
-    def log(line):
-        assert stop["held"]
-        stop["signum"] = signal.SIGINT                   # what the handler does while held
-    with pytest.raises(Stopped) as err:
-        study.run(trial, stop, log)
-    assert err.value.signum == signal.SIGINT and not stop["held"]
-    assert study.load().trials[0].state == TrialState.COMPLETE and study.made == [("tidied", study.folder(0))]
+# (a signal while the trial is told: test_tune's test_a_signal_while_a_trial_is_recorded_lets_the_record_finish,
+# with a real SIGINT)
 
 
 # ------------------------------------------------------------------ run_stages
