@@ -129,14 +129,18 @@ def staged(study, monkeypatch):
     made = study.made
     study.now, study.values = 1, {1: 5.0, 2: 4.0, 4: 3.0}
 
+    folder = Folder(made)
+
     def open_run(trial, path, config):
         made.append(("open", path, config))
-        return Folder(made), {"run": {"episodes": study.now, "env_steps": 0}}
+        study.opened_for = trial
+        return folder, {"run": {"episodes": study.now, "env_steps": 0}}
     monkeypatch.setattr(study, "open_run", open_run)
     monkeypatch.setattr(runner, "resumable_config", lambda folder, lengthen=False: made.append(("config", lengthen))
                         or {"run": {"episodes": study.now, "env_steps": 0}})
-    monkeypatch.setattr(runner, "lengthen", lambda folder, config, episodes, env_steps: made.append(
-        ("lengthen", episodes, env_steps)) or {"run": {"episodes": episodes, "env_steps": env_steps}})
+    monkeypatch.setattr(runner, "lengthen", lambda lengthened, config, episodes, env_steps: made.append(
+        ("lengthen", episodes, env_steps)) or {"run": {"episodes": episodes, "env_steps": env_steps}}
+        if lengthened is folder else pytest.fail("another folder lengthened"))
     monkeypatch.setattr(runner, "resume", lambda folder, config, progress: made.append(("resume", config, progress)))
     monkeypatch.setattr(staging_module, "load_run", lambda path: path)
     monkeypatch.setattr(staging_module, "stage", lambda run, lengths: (run, lengths["episodes"]))
@@ -154,6 +158,20 @@ def test_each_stage_not_yet_run_is_lengthened_to_and_all_but_the_last_reported(s
                                "acquire", ("config", True), ("lengthen", 4, 0), ("resume", {"run": {"episodes": 4, "env_steps": 0}}, False),
                                "release"]
     assert trial.storage.get_trial(trial._trial_id).intermediate_values == {1: 5.0, 2: 4.0}
+    assert staged.opened_for is trial
+
+
+def test_a_count_of_env_steps_is_drawn_as_a_fraction_of_the_studys_budget(tmp_path, monkeypatch):
+    """DQN's exploration_steps on a 400-step budget: a fraction in [0.05, 0.5] of it (Optuna's
+    ``exploration_steps_fraction``), not a count from the episode-budget range (500-20,000)."""
+    study = open_study(tmp_path, {"agent": "dqn", "env_steps": "400"}, name="dqn")
+    made = []
+    monkeypatch.setattr(study, "open_run", lambda trial, path, config: made.append(config) or pytest.fail("drawn"))
+    trial = study.load().ask()
+    with pytest.raises(pytest.fail.Exception):
+        study.run_stages(trial)
+    fraction = trial.storage.get_trial(trial._trial_id).params["exploration_steps_fraction"]
+    assert 20 <= made[0]["agent"]["exploration_steps"] == max(1, round(fraction * 400)) <= 200
 
 
 def test_a_trials_config_is_the_studys_request_with_its_drawn_settings(staged):
