@@ -12,11 +12,13 @@ from trl_dgpq.commands import plot
 
 
 def run(path, agent="dgpq", preset=None, config=True, domain="square", figures_of_its_own=None, env_id=None):
+    """A loaded run as analysis.runs gives it: without its config, no domain either."""
     analysis = SimpleNamespace(figures=figures_of_its_own) if figures_of_its_own else SimpleNamespace()
     return SimpleNamespace(path=Path(path), agent=agent, preset=preset, config={"run": {}} if config else None,
                            env_id=env_id or domain,
                            domain=SimpleNamespace(name=domain, analysis=lambda: analysis,
-                                                  measure=lambda env_id: (f"steps of {env_id}", "steps per episode")))
+                                                  measure=lambda env_id: (f"steps of {env_id}", "steps per episode"))
+                           if config else None)
 
 
 def test_labels_are_agent_and_preset_else_the_folders_name():
@@ -135,7 +137,7 @@ def test_an_evaluated_run_adds_its_figure_and_a_run_without_config_is_scored_by_
                                                                                         monkeypatch):
     monkeypatch.setattr(figures, "evaluation_figure", lambda runs, labels, out, column, ylabel: figured.append(
         ("evaluation", column, ylabel)) or out / "eval_returns.png")
-    plot.draw([run("r/bare", config=False, domain=None)], None, tmp_path, args())
+    plot.draw([run("r/bare", config=False)], None, tmp_path, args())
     assert figured[-1] == ("evaluation", "return", "return per episode")
     assert capsys.readouterr().out.endswith(f"wrote {tmp_path}/eval_returns.png\n")
 
@@ -143,7 +145,7 @@ def test_an_evaluated_run_adds_its_figure_and_a_run_without_config_is_scored_by_
 def test_runs_of_several_domains_share_the_generic_figures_with_a_note(figured, tmp_path, capsys):
     own = []
     runs = [run("r/a", domain="square", figures_of_its_own=lambda *a, **k: own.append(1) or []),
-            run("r/b", domain="gym", env_id="gym:CartPole-v1"), run("r/c", config=False, domain=None)]
+            run("r/b", domain="gym", env_id="gym:CartPole-v1"), run("r/c", config=False)]
     plot.draw(runs, None, tmp_path, args())
     assert not own and figured[0][0] == "episodes"
     assert capsys.readouterr().err == ("note: runs of 2 domains (gym, square) share only the generic figures (steps and "

@@ -30,14 +30,17 @@ class FakeStudy:
 
     def validation_seeds(self, seeds):
         self.calls.append(("validation seeds", seeds))
+        if seeds == [1000]:
+            raise ValueError("validation seeds [1000] are the study's own tuning seeds")
         return seeds
 
     def load(self):
-        return "loaded"
+        """A fresh read of the storage: each one finds a trial more done (what a run left)."""
+        self.loads = getattr(self, "loads", 0) + 1
+        return self.loads
 
     def done(self, loaded):
-        assert loaded == "loaded"
-        return 2
+        return 1 + loaded
 
     def summary(self, trials):
         return f"best of {trials}"
@@ -54,10 +57,11 @@ class FakeStudy:
         return "preset 'tuned' of study s (12 trials)" if name == "tuned" else None
 
     def write_preset(self, name, force):
+        """As the study does: no name, the study's own preset's (the name ``replaces`` was asked of)."""
         self.calls.append(("write", name, force))
         if name == "bad":
             raise ValueError("a preset of another domain")
-        return name or "tuned", "envs/square/tuned.json"
+        return name or next(c[1] for c in reversed(self.calls) if c[0] == "replaces"), "envs/square/tuned.json"
 
 
 @pytest.fixture
@@ -79,7 +83,7 @@ def test_a_study_is_opened_with_the_run_and_tune_settings_apart_then_run(fake, c
     assert given == {"env": "square", "agent": "dqn", "episodes": "4", "seeds": "1000-1001"}
     assert run == ("run", 5, 1)
     assert capsys.readouterr().out == ("study sqlite:///s/study.db: dqn on square, steps to 30 (minimize); 2/5 trials "
-                                       "done\nbest of 5\n")
+                                       "done\nbest of 5\n")                  # (2: the first read of the storage)
 
 
 @pytest.mark.parametrize("flags, words", [
@@ -92,6 +96,13 @@ def test_what_is_refused_before_any_study_is_opened(fake, capsys, flags, words):
     with pytest.raises(SystemExit) as err:
         tune.main([*ARGS, *flags])
     assert err.value.code == 2 and words in capsys.readouterr().err and fake.calls == []
+
+
+def test_seeds_the_study_refuses_for_validation_end_before_any_trial(fake, capsys):
+    with pytest.raises(SystemExit) as err:
+        tune.main([*ARGS, "--validate", "1", "--validation-seeds", "1000-1000"])
+    assert err.value.code == 2 and "the study's own tuning seeds" in capsys.readouterr().err
+    assert not any(c[0] == "run" for c in fake.calls)
 
 
 def test_validation_seeds_are_asked_of_the_study_only_to_validate(fake):
@@ -108,9 +119,10 @@ def test_a_signal_says_how_far_the_study_got_and_how_to_continue(fake, capsys, s
     fake.validated["signum"] = signal.SIGTERM
     assert tune.main([*ARGS, "--out", "my study", *storage, "--trials", "7", "--validate", "1"]) == 143
     captured = capsys.readouterr()
-    assert captured.err == ("interrupted by SIGTERM: 2/7 trials done; continue with: python scripts/tune.py --out "
+    # 3 done: the storage read again after the workers stopped (the header said 2)
+    assert captured.err == ("interrupted by SIGTERM: 3/7 trials done; continue with: python scripts/tune.py --out "
                             f"'my study'{hint} --trials 7\n")
-    assert "best of" not in captured.out and ("validate", 1, list(range(1005, 1015))) not in fake.calls
+    assert "best of" not in captured.out and not any(c[0] == "validate" for c in fake.calls)
 
 
 def test_validation_logs_its_lines_and_its_ends(fake, capsys):
@@ -139,6 +151,8 @@ def test_a_preset_is_written_under_its_name_and_says_what_it_replaced(fake, caps
                                                   "train.py --env square --agent dqn --preset late\n")
     assert tune.main([*ARGS, "--preset", "noisy", "--write-preset"]) == 0
     assert ("replaces", "noisy-tuned") in fake.calls                   # a study on another preset: its own name
+    assert capsys.readouterr().out.endswith("wrote preset 'noisy-tuned' to envs/square/tuned.json: python scripts/"
+                                            "train.py --env square --agent dqn --preset noisy-tuned\n")
     with pytest.raises(SystemExit) as err:
         tune.main([*ARGS, "--write-preset", "bad"])
     assert err.value.code == 2 and "a preset of another domain" in capsys.readouterr().err
@@ -175,20 +189,19 @@ def test_one_worker_fills_the_study_here_and_returns_the_signal_that_stopped_it(
 
 
 class Proc:
-    """A worker process that ends with ``code`` (recorded: started, joined)."""
-    made = []
+    """A worker process that ends with ``code``; starts and joins in one log for all of them."""
+    made, log = [], []
 
     def __init__(self, code, target, args):
-        self.exitcode, self.target, self.args, self.pid, self.events = None, target, args, None, []
-        self.code = code
+        self.exitcode, self.target, self.args, self.pid, self.code = None, target, args, None, code
         Proc.made.append(self)
 
     def start(self):
-        self.pid = 4242
-        self.events.append("start")
+        self.pid = 4242 + Proc.made.index(self)
+        Proc.log.append(("start", self.pid))
 
     def join(self):
-        self.events.append("join")
+        Proc.log.append(("join", self.pid))
         self.exitcode = self.code
 
     def is_alive(self):
@@ -196,7 +209,7 @@ class Proc:
 
 
 def workers(monkeypatch, codes, during_join=None):
-    Proc.made = []
+    Proc.made, Proc.log = [], []
     codes = list(codes)
 
     class Context:
@@ -218,7 +231,8 @@ def test_k_workers_are_spawned_on_the_same_study_and_their_ends_read(monkeypatch
     from trl_dgpq.study import worker
     study = workers(monkeypatch, [0, 0, 0])
     assert tune.run_workers(study, 9, 3) == 0
-    assert len(Proc.made) == 3 and all(p.events == ["start", "join"] for p in Proc.made)
+    assert Proc.log == [("start", 4242), ("start", 4243), ("start", 4244), ("join", 4242), ("join", 4243),
+                        ("join", 4244)]                                   # all started, then each waited for
     assert all(p.target is worker and p.args == ("dir", "sqlite:///dir/study.db", {"given": {}}, 9) for p in Proc.made)
     study = workers(monkeypatch, [0, 128 + signal.SIGINT, 128 + signal.SIGTERM])
     assert tune.run_workers(study, 9, 3) == signal.SIGINT                      # the first stopped one's
@@ -231,16 +245,17 @@ def test_k_workers_are_spawned_on_the_same_study_and_their_ends_read(monkeypatch
 
 
 def test_a_signal_to_tune_is_sent_on_to_each_live_worker_once(monkeypatch):
+    """Three workers; the first has ended when SIGTERM arrives (during the second's join): it goes
+    to the two still alive, once; a SIGINT after it is not sent on."""
     killed = []
     monkeypatch.setattr(tune.os, "kill", lambda pid, signum: killed.append((pid, signum)))
 
     def signal_arrives(proc):
-        if proc is Proc.made[0]:
-            handler = signal.getsignal(signal.SIGTERM)
-            handler(signal.SIGTERM, None)
+        if proc is Proc.made[1]:
+            signal.getsignal(signal.SIGTERM)(signal.SIGTERM, None)
             signal.getsignal(signal.SIGINT)(signal.SIGINT, None)     # a second one: not sent again
     before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    study = workers(monkeypatch, [0, 0], during_join=signal_arrives)
-    assert tune.run_workers(study, 9, 2) == signal.SIGTERM
-    assert killed == [(4242, signal.SIGTERM), (4242, signal.SIGTERM)]
+    study = workers(monkeypatch, [0, 0, 0], during_join=signal_arrives)
+    assert tune.run_workers(study, 9, 3) == signal.SIGTERM
+    assert killed == [(4243, signal.SIGTERM), (4244, signal.SIGTERM)]
     assert {s: signal.getsignal(s) for s in before} == before                 # tune's own handlers put back
