@@ -184,39 +184,6 @@ def test_sweeps_help_shows_this_machines_cores(monkeypatch, capsys):
 
 
 # ------------------------------------------------------------ small things a new user met (issue 30)
-def test_plot_refuses_in_one_line_naming_the_command_a_user_types(tmp_path, monkeypatch, capsys):
-    from trl_dgpq.commands import plot
-    monkeypatch.chdir(tmp_path)
-    assert plot.main([]) == 2                               # no run folder, none under runs/
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "usage:" not in err and "none found under runs/" in err
-    assert plot.main([str(tmp_path / "nope")]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "usage:" not in err and "train.py --out" in err  # as run here: scripts/
-    from tests.test_report import fake_run
-    run = fake_run(tmp_path / "run", "square", {0: [30, 20]}, agent="dgpq")
-    assert plot.main([str(run), "--labels", "a", "b"]) == 2
-    assert "1 runs, 2 labels" in capsys.readouterr().err
-    locked = tmp_path / "a-file"
-    locked.write_text("")
-    assert plot.main([str(run), "--out", str(locked / "figs")]) == 2
-    err = capsys.readouterr().err
-    assert "cannot create the folder for the figures" in err and "Errno" not in err
-
-
-def test_plot_refuses_a_block_under_one_episode_in_one_line(tmp_path, capsys, saved_figures):
-    """--block is the episodes per plotted mean: 0 (or fewer) is refused in one line, exit 2, before
-    any figure; 1 is the smallest that plots."""
-    from tests.test_report import fake_run
-    from trl_dgpq.commands import plot
-    run = fake_run(tmp_path / "run", "f16", {0: [60, 60, 60]}, returns={0: [-9.0, -5.0, -2.0]}, agent="dgpq")
-    for block in ("0", "-3"):
-        assert plot.main([str(run), "--block", block]) == 2
-        assert capsys.readouterr().err == ("plot.py: error: --block must be >= 1 (episodes per plotted mean), "
-                                           f"got {block}\n")
-    assert not saved_figures and not list(run.glob("*.png"))
-    assert plot.main([str(run), "--block", "1"]) == 0
-
 def test_a_flag_that_means_something_else_per_config_shows_each_ones_help(capsys):
     with pytest.raises(SystemExit):
         train.main(["--help"])
@@ -248,25 +215,12 @@ def test_make_clean_keeps_the_runs():
     assert "rm -rf" in clean and "runs" not in clean                # hours of runs are not build output
 
 
-def test_plot_says_what_to_plot_in_a_sweeps_folder_and_when_runs_of_several_domains_share_a_figure(
-        tmp_path, capsys):
-    """A sweep's folder holds experiments, not episodes: plot names them (quoted) instead of advising
-    train --out; runs of two domains are drawn on the generic figures, with a note saying so."""
+def test_plot_draws_runs_of_two_domains_on_the_generic_figures(tmp_path):
+    """A real draw (test_plot_command has plot's rules with the figures stubbed): a square run and a
+    CartPole run together get the steps and time figures."""
     from tests.test_report import fake_run
     from trl_dgpq.commands import plot
-    sweep = tmp_path / "my sweep"
-    sweep.mkdir()
-    (sweep / "sweep.json").write_text("{}")
-    assert plot.main([str(sweep)]) == 2
-    assert "is a sweep's folder and none of its experiments has finished yet" in capsys.readouterr().err
-    fake_run(sweep / "a", "square", {0: [5, 6]})
-    assert plot.main([str(sweep)]) == 2
-    err = capsys.readouterr().err
-    assert "plot its experiments, e.g. " in err and f"'{sweep / 'a'}'" in err and "train" not in err
     square = fake_run(tmp_path / "sq", "square", {0: [5, 6]})
     gym = fake_run(tmp_path / "gym", "gym:CartPole-v1", {0: [10, 20]})
     assert plot.main([str(square), str(gym), "--out", str(tmp_path / "fig")]) == 0
-    assert ("note: runs of 2 domains (gym, square) share only the generic figures"
-            in capsys.readouterr().err)
-    assert plot.main([str(square), "--out", str(tmp_path / "fig2")]) == 0
-    assert "note:" not in capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "fig").glob("*.png")) == ["steps_per_episode.png", "time_per_step.png"]

@@ -1,7 +1,6 @@
 """collectors/experiment.py rule by rule, without a learning run: seeds in every form and each
 refusal's words, which section a setting belongs to, a recorded config as the base, the memory
 checks with the machine's numbers stubbed, and the flags' owners."""
-from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -149,13 +148,21 @@ def test_the_memory_a_run_needs_is_refused_past_what_is_available(monkeypatch):
     experiment.check_memory(config)                                     # unknown: not refused
 
 
-def test_this_machines_memory_and_this_processs_are_read():
-    have = experiment.available_memory()
-    if Path("/proc/meminfo").exists():                  # Linux: it is known
-        assert have is not None and have > 2**20
-    else:
-        assert have is None
+def test_this_machines_memory_and_this_processs_are_read(monkeypatch):
+    import io
     assert experiment.resident_bytes() > 2**20
+    meminfo = "MemTotal:       24684144 kB\nMemFree:        19981276 kB\nMemAvailable:   22649748 kB\n"
+    monkeypatch.setattr(experiment, "open", lambda path: io.StringIO(meminfo) if path == "/proc/meminfo"
+                        else pytest.fail(path), raising=False)
+    assert experiment.available_memory() == 22649748 * 1024
+    monkeypatch.setattr(experiment, "open", lambda path: io.StringIO(meminfo.replace("MemAvailable", "Other")),
+                        raising=False)
+    assert experiment.available_memory() is None                     # an old kernel's file: unknown
+
+    def unreadable(path):
+        raise PermissionError(path)
+    monkeypatch.setattr(experiment, "open", unreadable, raising=False)
+    assert experiment.available_memory() is None
 
 
 def test_the_memory_guard_names_what_a_growth_would_pass(monkeypatch):

@@ -86,6 +86,12 @@ def test_any_schedules_cost_by_the_sums():
         assert set(got) == {"expected_shortfall", "variance", "utility"}
     exact = m.cost([1.0, 5.0, 0.0])                    # float64
     assert exact["expected_shortfall"] == pytest.approx(0.05 * 6 + 0.5 * 0.02 * 36 + 0.04 * 26, rel=1e-15)
+    # the env's own account of a schedule on a noise-free path (a buy included) is the same cost
+    env = LiquidationEnv([0], trades=3, shares=6.0)
+    for n in ([2.0, 0.0, 4.0], [7.0, -1.0, 0.0]):
+        trades = torch.tensor(n, dtype=torch.float64)
+        assert float(env.path_cost(trades, torch.zeros(1, 3, dtype=torch.float64))) == pytest.approx(
+            env.model.cost(trades)["utility"], rel=1e-12)
 
 
 # ------------------------------------------------------------------ the env

@@ -79,7 +79,7 @@ def evaluated(monkeypatch):
         return rows
     monkeypatch.setattr(evaluate_module, "evaluate", fake)
     trained = SimpleNamespace(
-        df=pd.DataFrame({"seed": [0, 0, 0, 1, 1], "steps": [1.0, 2.0, 4.0, 8.0, 16.0]}), env_id="gym:X",
+        df=pd.DataFrame({"seed": [0, 0, 1, 1, 1], "steps": [1.0, 2.0, 8.0, 16.0, 32.0]}), env_id="gym:X",
         domain=SimpleNamespace(measure=lambda env_id: ("steps", f"steps of {env_id}"),
                                format_measure=lambda value, env_id: f"{value:.2f} ({env_id})"))
     import trl_dgpq.analysis
@@ -90,9 +90,10 @@ def evaluated(monkeypatch):
 def test_evaluate_compares_with_each_seeds_last_training_episodes(evaluated, capsys):
     assert evaluate.main(["r", "--episodes", "2"]) == 0
     assert evaluated == [dict(folder=Path("r"), episodes=2, progress=True, out=None)]
-    # training: seed 0's last 2 are 2 and 4, seed 1's 8 and 16: mean 7.5; evaluation: 25
+    # training: seed 0's 2 episodes 1 and 2, seed 1's last 2 16 and 32: mean 12.75 (the last 4 rows of all: 14.5;
+    # seeds of unequal lengths, the longer last); evaluation: 25
     assert capsys.readouterr().out == ("r: steps of gym:X, mean over 2 seeds x 2 evaluation episodes: 25.00 (gym:X) "
-                                       "(mean over each seed's last 2 training episodes: 7.50 (gym:X)); wrote r/eval.csv\n")
+                                       "(mean over each seed's last 2 training episodes: 12.75 (gym:X)); wrote r/eval.csv\n")
 
 
 def test_evaluate_writes_elsewhere_one_folder_a_run(evaluated, capsys):

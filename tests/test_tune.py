@@ -302,16 +302,6 @@ def test_reporting_seeds_cover_every_report_and_tuning_seeds_avoid_them():
     assert not set(TUNING_SEEDS) & set(REPORTING_SEEDS)
 
 
-def test_tuning_on_reporting_seeds_is_refused_in_one_line(tmp_path, capsys):
-    out = tmp_path / "study"
-    with pytest.raises(SystemExit) as exc:
-        tune.main(["--env", "square", "--agent", "dgpq", "--seeds", "95-104", "--trials", "1", "--out", str(out)])
-    assert exc.value.code == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "[95, 96, 97, 98, 99] are reporting seeds" in err
-    assert not out.exists()
-
-
 # ---------------------------------------------------------------- studies
 
 
@@ -621,23 +611,6 @@ def test_validate_runs_the_best_trials_and_the_first_again_on_other_seeds(tmp_pa
     again = optuna.load_study(study_name="study", storage=f"sqlite:///{out / 'study.db'}").user_attrs["validation"]
     assert again["seeds"] == [1007] and set(again["values"]) == set(stored["values"])  # other seeds: run again
     assert json.loads((out / "validation" / "0000" / "config.json").read_text())["run"]["seeds"] == [1007]
-
-
-def test_bad_validation_seeds_are_refused_before_any_trial(tmp_path, capsys):
-    out = tmp_path / "study"
-    with pytest.raises(SystemExit) as exc:  # reporting seeds: refused before the study is even made
-        tune.main([*TINY, "--episodes", "2", "--out", str(out), "--trials", "1", "--validate", "1",
-                   "--validation-seeds", "5-6"])
-    assert exc.value.code == 2 and "reporting seeds" in capsys.readouterr().err and not out.exists()
-    with pytest.raises(SystemExit) as exc:
-        tune.main([*TINY, "--episodes", "2", "--out", str(out), "--trials", "1", "--validate", "1",
-                   "--validation-seeds", "1000-1001"])
-    assert exc.value.code == 2 and "the study's own tuning seeds" in capsys.readouterr().err
-    assert all(t.state == optuna.trial.TrialState.WAITING for t in trials_of(out))  # none ran
-    assert not (out / "trials").exists()
-    with pytest.raises(SystemExit):
-        tune.main([*TINY, "--out", str(tmp_path / "other"), "--trials", "1", "--validate", "-1"])
-    assert "--validate must be >= 0" in capsys.readouterr().err and not (tmp_path / "other").exists()
 
 
 @pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
