@@ -247,7 +247,10 @@ def test_every_sweep_file_a_page_shows_is_read(tmp_path):
 
 def test_readmes_links_reach_files_and_it_stays_short():
     text = (ROOT / "README.md").read_text()
-    assert len(text.splitlines()) <= 200, "README.md is for a visitor's two minutes: the rest goes in docs/"
+    # the hand-written part stays short; the results block is generated, a row per published claim
+    # (128 lines with liquidation on one reward's 20 claims, 2026-11-29)
+    written = re.sub(r"<!-- results: .*? -->\n.*?<!-- /results -->", "", text, flags=re.S)
+    assert len(written.splitlines()) <= 100, "README.md is for a visitor's two minutes: the rest goes in docs/"
     links = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
     assert links
     for link in links:

@@ -289,13 +289,13 @@ def test_reproduce_on_one_worker_runs_domain_by_domain_the_smallest_first(tmp_pa
     domains = {name: d.name for d, a in reproduce.reproductions() for name, *_ in a.REPRODUCE}
     ordered = [domains[j.experiment] for j in reproduce.in_order(jobs, 1)]
     runs = [d for k, d in enumerate(ordered) if k == 0 or d != ordered[k - 1]]
-    assert runs[:3] == ["push", "square-paper-tuned", "gym"] and len(runs) == len(set(runs)) == 8   # one stretch each
+    assert runs[:3] == ["push", "square-paper-tuned", "gym"] and len(runs) == len(set(runs)) == 9   # one stretch each
     assert sorted(reproduce.in_order(jobs, 1), key=id) == sorted(jobs, key=id)     # every job, once
     liq = [j.experiment for j in reproduce.in_order(jobs, 1) if domains[j.experiment] == "liquidation"]
     assert liq[0] == "liq-td3-shortfall"                  # within a domain the shortest first (3,000 episodes)
     agents = [j.config["run"]["agent"] for j in reproduce.in_order(jobs, 2)]
     first = len([a for a in agents if a in ("ddpg", "td3")])
-    assert first == 6 and set(agents[:first]) == {"ddpg", "td3"}
+    assert first == 10 and set(agents[:first]) == {"ddpg", "td3"}
     # with each job's estimate: the longest first, ties in the plan's order
     seconds = {j.name: float(k % 5) for k, j in enumerate(jobs)}
     longest = reproduce.in_order(jobs, 2, lambda j: seconds[j.name])
