@@ -69,7 +69,8 @@ def fake(monkeypatch):
     FakeStudy.calls, FakeStudy.validated = [], {}
     monkeypatch.setattr(trl_dgpq.study, "Study", FakeStudy)
     monkeypatch.setattr(tune, "run_workers", lambda study, trials, workers: FakeStudy.calls.append(
-        ("run", trials, workers)) or FakeStudy.validated.get("signum", 0))
+        ("run", trials, workers)) or (0 if isinstance(study, FakeStudy) else pytest.fail("not the study opened"))
+        or FakeStudy.validated.get("signum", 0))
     return FakeStudy
 
 
@@ -86,9 +87,35 @@ def test_a_study_is_opened_with_the_run_and_tune_settings_apart_then_run(fake, c
                                        "done\nbest of 5\n")                  # (2: the first read of the storage)
 
 
+def test_the_storage_and_each_set_reach_the_study_and_the_command_line_is_the_processs(fake, monkeypatch):
+    monkeypatch.setattr("sys.argv", ["tune.py", *ARGS, "--storage", "postgresql://h/db", "--set", "gp.noise_var=0.2",
+                                     "--set", " lr = 0.001"])
+    assert tune.main() == 0
+    _, out, storage, given, _ = fake.calls[0]
+    assert storage == "postgresql://h/db" and given == {"env": "square", "agent": "dqn", "gp.noise_var": "0.2",
+                                                        "lr": " 0.001"}   # the key stripped
+
+
+def test_a_set_without_key_and_value_is_refused_in_one_line(fake, capsys):
+    with pytest.raises(SystemExit) as err:
+        tune.main([*ARGS, "--set", "lr"])
+    assert err.value.code == 2 and capsys.readouterr().err == "tune.py: error: --set wants KEY=VALUE, got 'lr'\n"
+
+
+def test_every_line_on_standard_output_is_flushed(fake, monkeypatch):
+    """tune runs for hours with its output in a log: each line is written as it is printed."""
+    printed = []
+    monkeypatch.setattr(tune, "print", lambda *a, **k: printed.append((a, k)), raising=False)
+    assert tune.main([*ARGS, "--validate", "1"]) == 0
+    assert [a[0] for a, _ in printed] == ["study sqlite:///s/study.db: dqn on square, steps to 30 (minimize); 2/3 "
+                                          "trials done", "best of 3", "trial 1: score 4"]
+    assert all(k == {"flush": True} for _, k in printed)
+
+
 @pytest.mark.parametrize("flags, words", [
     (["--seeds", "0-4"], "tuning seeds [0, 1, 2, 3, 4] are reporting seeds"),
-    (["--validation-seeds", "98-99", "--validate", "1"], "validation seeds [98, 99] are reporting seeds"),
+    (["--validation-seeds", "98-99", "--validate", "1"], "validation seeds [98, 99] are reporting seeds: studies and "
+     "validations never touch the reporting seeds 0-99 (reports and make compare use them); use e.g. 1005-1014"),
     (["--validation-seeds", "98-99"], "validation seeds [98, 99] are reporting seeds"),   # checked though unused
     (["--validate", "-1"], "--validate must be >= 0, got -1"),
 ])
@@ -174,6 +201,8 @@ def test_ctrl_c_before_the_trials_is_one_line(monkeypatch, capsys):
 def test_one_worker_fills_the_study_here_and_returns_the_signal_that_stopped_it(monkeypatch, capsys):
     from trl_dgpq.study import Stopped
     seen = []
+    monkeypatch.setattr(tune, "print", lambda *a, **k: print(*a, **k) if k == {"flush": True} else pytest.fail(k),
+                        raising=False)
 
     def work(study, trials, stop, log):
         seen.append((study, trials, set(stop)))
