@@ -34,7 +34,8 @@ def drawn(monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
     calls = []
     monkeypatch.setattr(plot, "load_run", lambda r, need_config: calls.append(("load", r, need_config)) or r)
-    monkeypatch.setattr(plot, "draw", lambda runs, labels, out, args: calls.append(("draw", runs, labels, out)) or 0)
+    monkeypatch.setattr(plot, "draw", lambda runs, labels, out, args: calls.append(("draw", runs, labels, out))
+                        or calls.append(("args", args.block, args.last)) or 0)
     return calls
 
 
@@ -48,9 +49,10 @@ def test_the_runs_given_are_loaded_without_needing_a_config_and_drawn_into_the_f
     finished("runs/a", "b")
     assert plot.main(["runs/a", "b", "--labels", "one", "two"]) == 0
     assert drawn == [("load", "runs/a", False), ("load", "b", False), ("draw", ["runs/a", "b"], ["one", "two"],
-                                                                         Path("runs/a"))]
+                                                                         Path("runs/a")), ("args", None, None)]
     drawn.clear()
-    assert plot.main(["runs/a", "--out", "figs"]) == 0 and drawn[-1] == ("draw", ["runs/a"], None, Path("figs"))
+    assert plot.main(["runs/a", "--out", "figs"]) == 0 and drawn[-2] == ("draw", ["runs/a"], None, Path("figs"))
+    assert plot.main(["runs/a", "--block", "1", "--last", "20"]) == 0 and drawn[-1] == ("args", 1, 20)   # 1: the least
 
 
 def test_without_a_run_the_newest_under_runs_is_plotted(drawn):
@@ -58,7 +60,7 @@ def test_without_a_run_the_newest_under_runs_is_plotted(drawn):
     for age, name in ((300, "old"), (0, "new"), (600, "older")):
         t = 1_700_000_000 - age
         os.utime(Path("runs", name, "episodes.csv"), (t, t))
-    assert plot.main([]) == 0 and drawn[-1][1] == ["runs/new"]
+    assert plot.main([]) == 0 and drawn[-2][1] == ["runs/new"]
 
 
 @pytest.mark.parametrize("argv, words", [
@@ -82,7 +84,10 @@ def test_a_sweeps_folder_names_its_finished_experiments(drawn, capsys):
     assert plot.main(["sw"]) == 2
     assert capsys.readouterr().err == "plot.py: error: sw is a sweep's folder: plot its experiments, e.g. python " \
                                       "scripts/plot.py sw/a 'sw/b x'\n"
-    finished("sw/c", "sw/d")
+    finished("sw/c")
+    assert plot.main(["sw"]) == 2                                       # three: all named, no "..."
+    assert capsys.readouterr().err.endswith("e.g. python scripts/plot.py sw/a 'sw/b x' sw/c\n")
+    finished("sw/d")
     assert plot.main(["sw"]) == 2
     assert capsys.readouterr().err.endswith("e.g. python scripts/plot.py sw/a 'sw/b x' sw/c ...\n")
 
@@ -122,13 +127,13 @@ def test_runs_of_a_domain_without_figures_get_the_generic_ones(figured, tmp_path
 def test_a_domains_own_figures_get_last_and_a_block_only_when_given(figured, tmp_path, capsys):
     own = []
 
-    def f16_figures(runs, labels, out, last, **kw):
-        own.append((labels, last, kw))
+    def f16_figures(drawn_runs, labels, out, last, **kw):
+        own.append((drawn_runs is runs, labels, last, kw))
         return [out / "f16_reward.png"]
     runs = [run("r/a", domain="f16", figures_of_its_own=f16_figures), run("r/b", domain="f16")]
     plot.draw(runs, ["a", "b"], tmp_path, args(last=20))
     plot.draw(runs, ["a", "b"], tmp_path, args(block=5))
-    assert own == [(["a", "b"], 20, {}), (["a", "b"], None, {"block": 5})]
+    assert own == [(True, ["a", "b"], 20, {}), (True, ["a", "b"], None, {"block": 5})]
     assert [m[0] for m in figured] == ["evaluation", "evaluation"]
     assert capsys.readouterr().out == f"wrote {tmp_path}/f16_reward.png\n" * 2
 
