@@ -133,18 +133,24 @@ def staged(study, monkeypatch):
 
     def open_run(trial, path, config):
         made.append(("open", path, config))
-        study.opened_for = trial
+        study.opened_for, study.path = trial, path
         return folder, {"run": {"episodes": study.now, "env_steps": 0}}
+
+    def same(other, what):
+        if other is not folder:
+            pytest.fail(f"another folder {what}")
     monkeypatch.setattr(study, "open_run", open_run)
-    monkeypatch.setattr(runner, "resumable_config", lambda folder, lengthen=False: made.append(("config", lengthen))
-                        or {"run": {"episodes": study.now, "env_steps": 0}})
-    monkeypatch.setattr(runner, "lengthen", lambda lengthened, config, episodes, env_steps: made.append(
-        ("lengthen", episodes, env_steps)) or {"run": {"episodes": episodes, "env_steps": env_steps}}
-        if lengthened is folder else pytest.fail("another folder lengthened"))
-    monkeypatch.setattr(runner, "resume", lambda folder, config, progress: made.append(("resume", config, progress)))
-    monkeypatch.setattr(staging_module, "load_run", lambda path: path)
+    monkeypatch.setattr(runner, "resumable_config", lambda f, lengthen=False: same(f, "read") or made.append(
+        ("config", lengthen)) or {"run": {"episodes": study.now, "env_steps": 0}})
+    monkeypatch.setattr(runner, "lengthen", lambda f, config, episodes, env_steps: same(f, "lengthened") or made.append(
+        ("lengthen", episodes, env_steps)) or {"run": {"episodes": episodes, "env_steps": env_steps}})
+    monkeypatch.setattr(runner, "resume", lambda f, config, progress: same(f, "resumed") or made.append(
+        ("resume", config, progress)))
+    monkeypatch.setattr(staging_module, "load_run", lambda path: ("the run in", path))
     monkeypatch.setattr(staging_module, "stage", lambda run, lengths: (run, lengths["episodes"]))
-    study.objective.value = lambda staged_run: study.values[staged_run[1]]
+    # each stage scored on the trial's own run, cut to the stage's length
+    study.objective.value = lambda staged_run: study.values[staged_run[1]] if staged_run[0] == (
+        "the run in", study.path) else pytest.fail(f"scored {staged_run[0]}")
     return study
 
 
@@ -248,11 +254,13 @@ def small(study, lipschitz=1.0):
     return resolve_config({**study.request["given"], "agent.lipschitz": lipschitz})
 
 
-def test_a_new_trials_run_starts_its_first_stage(study):
+def test_a_new_trials_run_starts_its_first_stage(study, capfd):
     trial = study.load().ask()
     path = study.folder(0)
+    capfd.readouterr()
     folder, now = study.open_run(trial, path, small(study))
     folder.release()
+    assert capfd.readouterr().err == ""                              # no progress bar: the study logs its own lines
     assert now["run"]["episodes"] == 1 and now["run"]["seeds"] == [1000, 1001]
     assert runner.RunFolder(path).read_json(runner.CONFIG)["run"]["episodes"] == 1
     assert runner.RunFolder(path).finished() and "resumed" not in trial.user_attrs
@@ -268,14 +276,23 @@ def test_a_retried_trials_run_goes_on_and_other_settings_start_over(study, monke
     recorded = runner.RunFolder(path).read_json(runner.CONFIG)
     assert now == {k: recorded[k] for k in ("run", "env", "agent")} and now["run"]["episodes"] == 1
     assert trial.user_attrs["resumed"] == {"from_trial": None, "episodes_done": 2}   # 2 seeds x 1 episode
-    # interrupted: resumed from its checkpoint with its own config
+    # interrupted, by the retry of trial 0 (whose folder it took over): resumed with its own config
     runner.RunFolder(path).write_json(runner.STATUS, {**runner.RunFolder(path).status(), "status": "interrupted"})
+    loaded = study.load()
+    loaded.tell(trial, 1.0)
+    loaded.enqueue_trial({}, user_attrs={"retry_of": 0})
+    retry = loaded.ask()
     resumed = []
     with monkeypatch.context() as patched:
         patched.setattr(runner, "resume", lambda f, config, progress: resumed.append((f.path, config, progress)))
-        folder, now = study.open_run(trial, path, {**small(study), "note": "not recorded"})
+        folder, now = study.open_run(retry, path, {**small(study), "note": "not recorded"})
         folder.release()
-    assert resumed == [(path, now, False)] and now == {k: recorded[k] for k in ("run", "env", "agent")}
+        assert resumed == [(path, now, False)] and now == {k: recorded[k] for k in ("run", "env", "agent")}
+        assert retry.user_attrs["resumed"] == {"from_trial": 0, "episodes_done": 2}
+        for name in (runner.CHECKPOINT, *runner.FALLBACKS):              # stopped before its first checkpoint
+            (path / name).unlink(missing_ok=True)
+        study.open_run(retry, path, small(study))[0].release()
+        assert retry.user_attrs["resumed"] == {"from_trial": 0, "episodes_done": 0}
     # another agent setting: started over
     folder, now = study.open_run(trial, path, small(study, lipschitz=2.0))
     folder.release()
