@@ -4,6 +4,7 @@ schedule between the limit and the default's urgency, any schedule's cost, the l
 log-returns, and the state a checkpoint keeps. (The price path's cost where tau is 2.5: test_liquidation's
 path-cost test.)"""
 import math
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -204,3 +205,20 @@ def test_every_spec_is_made_on_the_envs_device():
     specs = [continuous.observation_spec, continuous.observation_spec["trades_left"], continuous.action_spec,
              levels.action_spec]
     assert {spec.device.type for spec in specs} == {"cpu"}
+
+
+# ------------------------------------------------------------------ the scripted schedules
+def test_twap_sells_one_nth_of_the_rest_and_a_schedule_reads_its_trade_from_the_trades_left():
+    """TWAP over 4 trades sells 1/4, 1/3, 1/2 and all of what is left, exactly (float64); a
+    schedule's trade k is trades - trades_left, held within 0..N-1 (a step past the last trade
+    sells the rest, one before the first the first fraction)."""
+    from tensordict import TensorDict
+
+    from trl_dgpq.envs.liquidation.baselines import SchedulePolicy, TWAPPolicy
+    fractions = TWAPPolicy.schedule(SimpleNamespace(trades=4))
+    assert fractions.dtype == torch.float64 and fractions.tolist() == [1 / 4, 1 / 3, 1 / 2, 1.0]
+    policy = SchedulePolicy(torch.tensor([0.4, 0.3, 0.2, 0.1], dtype=torch.float32), trades=4)
+    td = TensorDict({"trades_left": torch.tensor([4.0, 3.0, 2.0, 1.0, 0.0, 5.0, -1.0])}, batch_size=[7])
+    sold = policy.act(td)
+    assert sold.shape == (7, 1) and sold.dtype == torch.float64
+    assert sold[:, 0].tolist() == pytest.approx([0.4, 0.3, 0.2, 0.1, 0.1, 0.4, 0.1], abs=1e-7)
