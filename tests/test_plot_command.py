@@ -30,12 +30,13 @@ def test_labels_are_agent_and_preset_else_the_folders_name():
 
 @pytest.fixture
 def drawn(monkeypatch, tmp_path):
-    """main with load_run and draw stubbed: each load and the draw recorded."""
+    """main with load_run and draw stubbed: each load recorded, and each draw with its runs, labels,
+    folder, --block and --last."""
     monkeypatch.chdir(tmp_path)
     calls = []
     monkeypatch.setattr(plot, "load_run", lambda r, need_config: calls.append(("load", r, need_config)) or r)
-    monkeypatch.setattr(plot, "draw", lambda runs, labels, out, args: calls.append(("draw", runs, labels, out))
-                        or calls.append(("args", args.block, args.last)) or 0)
+    monkeypatch.setattr(plot, "draw", lambda runs, labels, out, args: calls.append(
+        ("draw", runs, labels, out, args.block, args.last)) or 0)
     return calls
 
 
@@ -48,11 +49,13 @@ def finished(*names):
 def test_the_runs_given_are_loaded_without_needing_a_config_and_drawn_into_the_first(drawn):
     finished("runs/a", "b")
     assert plot.main(["runs/a", "b", "--labels", "one", "two"]) == 0
-    assert drawn == [("load", "runs/a", False), ("load", "b", False), ("draw", ["runs/a", "b"], ["one", "two"],
-                                                                         Path("runs/a")), ("args", None, None)]
+    assert drawn == [("load", "runs/a", False), ("load", "b", False),
+                     ("draw", ["runs/a", "b"], ["one", "two"], Path("runs/a"), None, None)]
     drawn.clear()
-    assert plot.main(["runs/a", "--out", "figs"]) == 0 and drawn[-2] == ("draw", ["runs/a"], None, Path("figs"))
-    assert plot.main(["runs/a", "--block", "1", "--last", "20"]) == 0 and drawn[-1] == ("args", 1, 20)   # 1: the least
+    assert plot.main(["runs/a", "--out", "figs"]) == 0
+    assert drawn[-1] == ("draw", ["runs/a"], None, Path("figs"), None, None)
+    assert plot.main(["runs/a", "--block", "1", "--last", "20"]) == 0       # --block 1: the least
+    assert drawn[-1] == ("draw", ["runs/a"], None, Path("runs/a"), 1, 20)
 
 
 def test_without_a_run_the_newest_under_runs_is_plotted(drawn):
@@ -60,7 +63,7 @@ def test_without_a_run_the_newest_under_runs_is_plotted(drawn):
     for age, name in ((300, "old"), (0, "new"), (600, "older")):
         t = 1_700_000_000 - age
         os.utime(Path("runs", name, "episodes.csv"), (t, t))
-    assert plot.main([]) == 0 and drawn[-2][1] == ["runs/new"]
+    assert plot.main([]) == 0 and drawn[-1][1] == ["runs/new"]
 
 
 @pytest.mark.parametrize("argv, words", [

@@ -31,15 +31,22 @@ def study(tmp_path, monkeypatch):
     return s
 
 
+def retry(loaded, of: int, stopped=None):
+    """The retry of trial ``of``, asked of ``loaded`` (a study's Optuna study), as the retry mechanism
+    enqueues it; ``stopped``, a running trial, is ended first."""
+    if stopped is not None:
+        loaded.tell(stopped, 1.0)
+    loaded.enqueue_trial({}, user_attrs={"retry_of": of})
+    return loaded.ask()
+
+
 def ended(study, monkeypatch, outcome, stop=None, retry_of=None):
     """Trial 0 (or, with ``retry_of``, trial 1 as its retry) run by ``run`` with ``run_stages``
     stubbed: it sets the trial's settings and returns ``outcome`` or raises it. (trial, log, stop)."""
     loaded = study.load()
     trial = loaded.ask()
     if retry_of is not None:
-        loaded.tell(trial, 1.0)
-        loaded.enqueue_trial({}, user_attrs={"retry_of": retry_of})
-        trial = loaded.ask()
+        trial = retry(loaded, retry_of, stopped=trial)
 
     def stages(t):
         t.set_user_attr("settings", {"lipschitz": 2.5, "hidden": [64, 64]})
@@ -230,20 +237,15 @@ def test_a_stage_by_env_steps_is_named_in_env_steps(staged, monkeypatch):
 def test_a_retry_takes_over_the_stopped_trials_folder_unless_it_has_one(staged):
     loaded = staged.load()
     first = loaded.ask()
-    loaded.tell(first, 1.0)
     staged.folder(0).mkdir(parents=True)
     (staged.folder(0) / "episodes.csv").write_text("rows")
-    loaded.enqueue_trial({}, user_attrs={"retry_of": 0})
-    retry = loaded.ask()
-    staged.run_stages(retry)
+    staged.run_stages(retry(loaded, 0, stopped=first))
     assert not staged.folder(0).exists() and (staged.folder(1) / "episodes.csv").read_text() == "rows"
-    loaded.enqueue_trial({}, user_attrs={"retry_of": 1})
-    again = loaded.ask()
+    again = retry(loaded, 1)
     staged.folder(2).mkdir()
     staged.run_stages(again)                                 # its own folder exists: the old one stays
     assert staged.folder(1).exists()
-    loaded.enqueue_trial({}, user_attrs={"retry_of": 7})
-    last = loaded.ask()
+    last = retry(loaded, 7)
     staged.run_stages(last)                                  # the old folder is gone: nothing to take
     assert last.number == 3 and not staged.folder(3).exists()
 
@@ -278,21 +280,18 @@ def test_a_retried_trials_run_goes_on_and_other_settings_start_over(study, monke
     assert trial.user_attrs["resumed"] == {"from_trial": None, "episodes_done": 2}   # 2 seeds x 1 episode
     # interrupted, by the retry of trial 0 (whose folder it took over): resumed with its own config
     runner.RunFolder(path).write_json(runner.STATUS, {**runner.RunFolder(path).status(), "status": "interrupted"})
-    loaded = study.load()
-    loaded.tell(trial, 1.0)
-    loaded.enqueue_trial({}, user_attrs={"retry_of": 0})
-    retry = loaded.ask()
+    again = retry(study.load(), 0, stopped=trial)
     resumed = []
     with monkeypatch.context() as patched:
         patched.setattr(runner, "resume", lambda f, config, progress: resumed.append((f.path, config, progress)))
-        folder, now = study.open_run(retry, path, {**small(study), "note": "not recorded"})
+        folder, now = study.open_run(again, path, {**small(study), "note": "not recorded"})
         folder.release()
         assert resumed == [(path, now, False)] and now == {k: recorded[k] for k in ("run", "env", "agent")}
-        assert retry.user_attrs["resumed"] == {"from_trial": 0, "episodes_done": 2}
+        assert again.user_attrs["resumed"] == {"from_trial": 0, "episodes_done": 2}
         for name in (runner.CHECKPOINT, *runner.FALLBACKS):              # stopped before its first checkpoint
             (path / name).unlink(missing_ok=True)
-        study.open_run(retry, path, small(study))[0].release()
-        assert retry.user_attrs["resumed"] == {"from_trial": 0, "episodes_done": 0}
+        study.open_run(again, path, small(study))[0].release()
+        assert again.user_attrs["resumed"] == {"from_trial": 0, "episodes_done": 0}
     # another agent setting: started over
     folder, now = study.open_run(trial, path, small(study, lipschitz=2.0))
     folder.release()

@@ -9,20 +9,21 @@ import pytest
 import trl_dgpq.study
 from trl_dgpq.collectors import runner
 from trl_dgpq.commands import tune
-
-
-SQUARES_DEFAULT = "shaped"          # the square's default preset (a study on it writes "tuned")
+from trl_dgpq.presets import default_preset
 
 
 class FakeStudy:
-    """What tune's main asks of a study, each call recorded in ``calls``."""
+    """What tune's main asks of a study, each call recorded in ``calls``; ``outcomes`` what the
+    stubs give back ("signum": the workers' stop, "outcome": validation's end)."""
     calls = []
-    validated = {}
+    outcomes = {}
 
     def __init__(self, out, storage, given, tune_given):
-        self.out, self.url = out, storage or f"sqlite:///{out}/study.db"
+        self.out, self.url, self.loads = out, storage or f"sqlite:///{out}/study.db", 0
         self.tune = SimpleNamespace(trials=int(tune_given.get("trials", 3)), workers=int(tune_given.get("workers", 1)))
-        self.config = {"run": {"env": "square", "agent": "dqn", "preset": given.get("preset", SQUARES_DEFAULT)}}
+        # a study on the square's default preset writes "tuned"
+        preset = given.get("preset", default_preset("square"))
+        self.config = {"run": {"env": "square", "agent": "dqn", "preset": preset}}
         self.objective = SimpleNamespace(text="steps to 30", direction="minimize")
         self.calls.append(("open", out, storage, given, tune_given))
 
@@ -36,7 +37,7 @@ class FakeStudy:
 
     def load(self):
         """A fresh read of the storage: each one finds a trial more done (what a run left)."""
-        self.loads = getattr(self, "loads", 0) + 1
+        self.loads += 1
         return self.loads
 
     def done(self, loaded):
@@ -47,7 +48,7 @@ class FakeStudy:
 
     def validate(self, k, seeds, log):
         self.calls.append(("validate", k, seeds))
-        outcome = self.validated.get("outcome")
+        outcome = self.outcomes.get("outcome")
         if isinstance(outcome, BaseException):
             raise outcome
         log("trial 1: score 4")
@@ -66,11 +67,11 @@ class FakeStudy:
 
 @pytest.fixture
 def fake(monkeypatch):
-    FakeStudy.calls, FakeStudy.validated = [], {}
+    FakeStudy.calls, FakeStudy.outcomes = [], {}
     monkeypatch.setattr(trl_dgpq.study, "Study", FakeStudy)
     monkeypatch.setattr(tune, "run_workers", lambda study, trials, workers: FakeStudy.calls.append(
         ("run", trials, workers)) or (0 if isinstance(study, FakeStudy) else pytest.fail("not the study opened"))
-        or FakeStudy.validated.get("signum", 0))
+        or FakeStudy.outcomes.get("signum", 0))
     return FakeStudy
 
 
@@ -143,7 +144,7 @@ def test_validation_seeds_are_asked_of_the_study_only_to_validate(fake):
 
 @pytest.mark.parametrize("storage, hint", [([], ""), (["--storage", "sqlite:///x.db"], " --storage sqlite:///x.db")])
 def test_a_signal_says_how_far_the_study_got_and_how_to_continue(fake, capsys, storage, hint):
-    fake.validated["signum"] = signal.SIGTERM
+    fake.outcomes["signum"] = signal.SIGTERM
     assert tune.main([*ARGS, "--out", "my study", *storage, "--trials", "7", "--validate", "1"]) == 143
     captured = capsys.readouterr()
     # 3 done: the storage read again after the workers stopped (the header said 2)
@@ -155,11 +156,11 @@ def test_a_signal_says_how_far_the_study_got_and_how_to_continue(fake, capsys, s
 def test_validation_logs_its_lines_and_its_ends(fake, capsys):
     assert tune.main([*ARGS, "--validate", "2"]) == 0
     assert capsys.readouterr().out.endswith("best of 3\ntrial 1: score 4\n")
-    fake.validated["outcome"] = runner.Interrupted(signal.SIGINT, None, 0)
+    fake.outcomes["outcome"] = runner.Interrupted(signal.SIGINT, None, 0)
     assert tune.main([*ARGS, "--validate", "2", "--validation-seeds", "1020-1024"]) == 130
     assert capsys.readouterr().err == ("interrupted: continue with: python scripts/tune.py --out s --validate 2 "
                                        "--validation-seeds 1020-1024\n")
-    fake.validated["outcome"] = ValueError("no trial has completed: there is nothing to validate")
+    fake.outcomes["outcome"] = ValueError("no trial has completed: there is nothing to validate")
     with pytest.raises(SystemExit) as err:
         tune.main([*ARGS, "--validate", "2"])
     assert err.value.code == 2 and "no trial has completed" in capsys.readouterr().err
