@@ -302,6 +302,10 @@ def test_the_run_lock_holds_the_writers_pid_alone(tmp_path):
     finally:
         folder.release()
 
+
+# behind slow: a real train.py (~6 s): the lock's rules in-process are
+# test_the_run_lock_holds_the_writers_pid_alone's and test_runner_units'
+@pytest.mark.slow
 def test_a_running_run_can_be_neither_overwritten_nor_resumed_by_a_second_writer(tmp_path, capsys):
     """A real train.py process writing OUT: --overwrite and --resume of OUT are refused in one
     line naming it; once it is killed (SIGKILL: no clean-up), the lock is gone with it."""
@@ -358,9 +362,11 @@ def test_storage_growth_is_estimated_by_hand():
     assert q.width == q.capacity == 2 and q.growth_bytes() == 2 * 8 * (3 * 2 * 2 * 4 + 3 * 2 * 2)
 
 
-# 5,000 (the first checkpoint fails) behind slow: 8,000 fails the CSV after a checkpoint, the path
-# that can lose rows; each is a real process, ~14 s
-@pytest.mark.parametrize("limit", [pytest.param(5_000, marks=pytest.mark.slow), 8_000])
+# 5,000: the first checkpoint fails; 8,000: the CSV fails after a checkpoint, the path that can lose rows.
+# Each a real train.py, ~9 s: behind slow, with a write failing for a full disk in-process in test_runner_units
+# (ENOSPC on episodes.csv, the checkpoint and status.json)
+@pytest.mark.slow
+@pytest.mark.parametrize("limit", [5_000, 8_000])
 def test_a_full_disk_stops_the_run_in_one_line_and_resume_finishes_the_same_csv(tmp_path, limit):
     """A file-size limit (RLIMIT_FSIZE, SIGXFSZ ignored: writes past it fail with EFBIG, as on a
     full disk) in a real train.py process. Checkpoints take ~5.9 kB and rows ~95 B: at 5,000 the

@@ -163,9 +163,9 @@ AGENT_CASES.update({f"{a}-example": supported_case(a) for a in agent_names()
 
 # The runner-level checks below (a stop and resume, a lengthening) go through the same state_dict as the
 # mid-run round trip above, which every case runs by default; by default they run on cases that differ
-# in what they save (a GP and Q̂, the noisy square's reward stream, pybullet worlds, gymnasium envs pickled
-# per seed with DQN, TD3's delayed policy), and on every case under -m slow.
-RUNNER_CASES = {"dgpq-sparse", "dgpq-noisy", "dgpq-push", "dqn-cartpole", "td3"}
+# in what they save (a GP and Q̂, pybullet worlds, TD3's networks, replay and delayed policy), and on every
+# case under -m slow (the noisy square's reward stream and gymnasium envs pickled per seed among them).
+RUNNER_CASES = {"dgpq-sparse", "dgpq-push", "td3"}
 
 
 def runner_cases():
@@ -343,6 +343,9 @@ def test_a_finished_run_lengthened_equals_the_longer_run(tmp_path, case):
     pd.testing.assert_frame_equal(episodes(whole), episodes(part))
 
 
+# behind slow: three runs lengthened (~4 s): one lengthening per case is
+# test_a_finished_run_lengthened_equals_the_longer_run's
+@pytest.mark.slow
 def test_lengthening_twice_and_by_budget_equals_the_longer_run(tmp_path):
     """Square episodes of random lengths: 2 -> 4 -> 7 episodes, and a budget of 60 -> 150 steps,
     each equal to the longer run from the start; config.json records the new length."""

@@ -110,6 +110,9 @@ def test_ray_gives_the_rows_of_the_pool(tmp_path):
                                       rows(tmp_path / "pool" / name / "episodes.csv", keep_job=True))
 
 
+# behind slow: real workers, one killed (~9 s): a job that fails while the others finish is
+# test_a_nan_from_the_env_fails_that_job_with_where_and_the_others_finish's
+@pytest.mark.slow
 def test_a_killed_job_is_reported_the_others_finish_and_resume_completes_it(tmp_path):
     """SIGKILL one job's process once it has written rows: it is reported as killed with its
     seeds, the other job finishes, no merged file yet; resume reruns only the killed job,
@@ -1040,6 +1043,10 @@ def test_max_job_minutes_splits_each_experiment_estimated_over_it():
     assert reproduce.job_seconds(planned, found, {}) == pytest.approx([start + 3000, start + 500])
 
 
+# behind slow: a real reproduction (~10 s): the split itself is
+# test_a_split_plan_gives_each_experiment_its_seeds_in_consecutive_groups's and
+# test_max_job_minutes_splits_each_experiment_estimated_over_it's
+@pytest.mark.slow
 def test_reproduce_runs_a_split_experiment_in_its_jobs_and_keeps_them_when_continued(tmp_path, capsys, monkeypatch):
     """square-random (4 seeds) estimated at an hour: --max-job-minutes 40 runs it as two jobs of two
     seeds each, whose rows are the experiment's; --plan says so; continued with another limit, the

@@ -305,6 +305,7 @@ def test_reporting_seeds_cover_every_report_and_tuning_seeds_avoid_them():
 # ---------------------------------------------------------------- studies
 
 
+@pytest.mark.slow  # whole studies (~3 s): a study's count of trials in units is test_study_trials'
 def test_a_larger_trials_adds_trials_and_a_full_study_only_reports(tmp_path, capsys):
     out = str(tmp_path / "study")
     args = [*TINY, "--episodes", "2", "--out", out]
@@ -461,6 +462,9 @@ def test_a_search_range_is_name_low_high_log_uniform():
 
 
 @pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
+# behind slow: whole studies (~3 s): the space given by flag is test_study_parts'
+# test_the_space_is_the_agents_less_what_the_command_line_gives's
+@pytest.mark.slow
 def test_a_study_searches_the_ranges_given_and_keeps_them(tmp_path, capsys):
     out = str(tmp_path / "study")
     args = [*TINY, "--episodes", "2", "--out", out, "--search", "lengthscale=5:6,eps1=0.5:0.6"]
@@ -496,6 +500,9 @@ def test_per_dimension_weights_are_searched_as_factors_on_the_base_preset():
         with_ranges(space, ["lipschitz=1:4"], {"lipschitz": 5.0})                          # a scalar: not weights
 
 
+# behind slow: whole studies (~4 s): weights as factors in units are test_study_parts'
+# test_weights_given_on_the_command_line_are_the_base_their_factors_scale's
+@pytest.mark.slow
 def test_a_study_searches_each_weight_of_the_metric(tmp_path, capsys):
     """--search state_scale=LOW:HIGH on weights given on the command line: the first trial runs them
     (every factor 1), the others scale each nonzero one by its own factor; a zero stays zero."""
@@ -573,6 +580,9 @@ def test_first_params_turn_back_into_the_values_by_each_ranges_suggest():
     assert first_params(space, {"a": 0.1, "b": 1.0, "n": 1_000}, 0) == {"a": 0.1, "b": 1.0, "n": 1_000}
 
 
+# behind slow: whole studies (~4 s): in units, test_study_validation's
+# test_the_k_best_trials_and_the_base_presets_run_again_on_the_validation_seeds
+@pytest.mark.slow
 def test_validate_runs_the_best_trials_and_the_first_again_on_other_seeds(tmp_path, capsys):
     """--validate 1: the best trial and trial 0 (the base preset's) rerun at the full budget on
     the validation seeds; each value is the IQM (two seeds: their mean) of each seed's mean
@@ -964,6 +974,9 @@ def test_validate_keeps_each_value_in_the_study_and_refuses_a_study_without_a_co
         study.validation_seeds([1003, 1005])
 
 
+# behind slow: whole studies (~4 s): in units, test_study_validation's
+# test_an_unfinished_run_is_resumed_from_its_folder and test_a_run_with_other_settings_is_started_over
+@pytest.mark.slow
 def test_a_validation_run_goes_on_from_its_checkpoint_and_starts_over_for_other_settings(tmp_path, stop_run_after):
     """``run_to_end``: a run stopped after its first batch of rows goes on from its checkpoint (its
     first rows are the ones written before the stop, wall times and all; the rows end as an
