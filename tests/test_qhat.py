@@ -342,3 +342,12 @@ def test_growth_bytes_counts_no_build_two_slots_short_of_index_min():
     assert q.width == 38 and q.growth_bytes() == 0
     q.insert(t([[99.0]]), torch.tensor([0]), t([99.0]), YES)
     assert isinstance(q.growth_bytes(), int) and q.growth_bytes() > 0
+
+
+def test_a_build_in_blocks_of_rows_gives_the_scans_values(monkeypatch):
+    """A build sorts ``BUILD_SLOTS`` slots at a time, a block of rows each: made small here, every block
+    is one row, as in a large Q̂'s build; the values stay the scan's to the bit."""
+    import trl_dgpq.qhat
+    monkeypatch.setattr(trl_dgpq.qhat, "BUILD_SLOTS", 8)
+    for metric in ("l1", "l2"):
+        check_index_against_scan(seed=3, metric=metric, dim=2, chunk=2, fan=2, lipschitz=1.0, grid=False)

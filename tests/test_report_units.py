@@ -11,12 +11,13 @@ from trl_dgpq.analysis.runs import Run
 from trl_dgpq.selection import SelectionSeedsError
 
 
-def run(steps_per_seed, env_steps=None, seeds=None, agent="dgpq", path="runs/r", env="square", extra=None):
+def run(steps_per_seed, env_steps=None, seeds=None, agent="dgpq", path="runs/r", env="square"):
     """A run whose seed i took ``steps_per_seed[i]`` steps in each of its episodes (3 episodes)."""
-    rows = [dict(seed=s, episode=e, steps=n, **(extra or {})) for s, n in enumerate(steps_per_seed) for e in (1, 2, 3)]
+    rows = [dict(seed=s, episode=e, steps=n) for s, n in enumerate(steps_per_seed) for e in (1, 2, 3)]
     df = pd.DataFrame(rows)
     df["env_steps"] = df.groupby("seed")["steps"].cumsum()
-    config = {"run": {"env": env, "agent": agent, "preset": "shaped", "seeds": seeds or list(range(len(steps_per_seed))),
+    seeds = seeds or list(range(len(steps_per_seed)))
+    config = {"run": {"env": env, "agent": agent, "preset": "shaped", "seeds": seeds,
                       **({"env_steps": env_steps} if env_steps is not None else {})}, "env": {}, "agent": {}}
     return Run(Path(path), df, config)
 
@@ -99,6 +100,7 @@ def test_the_profiles_figure_draws_each_agents_fraction_above_each_tau(monkeypat
 def test_each_agents_band_is_its_interval_in_its_curves_colour(monkeypatch, tmp_path):
     """rliable's profiles stubbed: a curve of 0.5 with the band [0.2, 0.9] for dgpq, 0.1 in [0, 0.3] for dqn."""
     import matplotlib.colors
+
     def curves(scores, taus):
         n = len(taus)
         assert n == 51 and taus[0] == 0.0 and taus[-1] == 1.0
@@ -180,8 +182,14 @@ def test_the_report_of_two_runs_by_hand(tmp_path):
         "[1.00, 1.00].",
         ""]
     assert [p.name for p in written] == ["compare-square.png", "compare.md", "results.csv"]
-    assert rp.report(runs, ["A", "B"], out, budget=120, window=3)[1].split("\n")[4].startswith(
-        "Budget: 120 environment steps per seed.")
+    lines = rp.report(runs, ["A", "B"], out, budget=120, window=3)[1].split("\n")
+    # within 120 env steps: DGPQ's 6 episodes, DQN's 3; the last 3 of each
+    assert lines[4] == ("Budget: 120 environment steps per seed. Threshold: mean steps per episode <= 25 over 10 "
+                        "episodes. At budget: steps per episode, mean of each seed's last 3 episodes within the "
+                        "budget; median [IQR] over seeds; IQM [95 % CI] over seeds (rliable).")
+    assert lines[8:10] == [
+        "| A | 2 | never (0/2 seeds met it) | 120 [120, 120] | 20 [20, 20] | 20 [20, 20] | 0 | 5.00 |",
+        "| B | 2 | never (0/2 seeds met it) | 120 [120, 120] | 40 [40, 40] | 40 [40, 40] | – | 2.50 |"]
 
 
 def test_a_run_the_check_refuses_stops_the_report_before_anything_is_written(tmp_path):

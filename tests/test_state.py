@@ -343,8 +343,9 @@ def test_a_finished_run_lengthened_equals_the_longer_run(tmp_path, case):
     pd.testing.assert_frame_equal(episodes(whole), episodes(part))
 
 
-# behind slow: three runs lengthened (~4 s): one lengthening per case is
-# test_a_finished_run_lengthened_equals_the_longer_run's
+# behind slow: three runs lengthened (~4 s); one lengthening per case is
+# test_a_finished_run_lengthened_equals_the_longer_run's, a cap raised later
+# test_a_seed_the_episode_cap_stopped_goes_on_when_the_cap_is_raised_later's, lengths in units test_runner_units'
 @pytest.mark.slow
 def test_lengthening_twice_and_by_budget_equals_the_longer_run(tmp_path):
     """Square episodes of random lengths: 2 -> 4 -> 7 episodes, and a budget of 60 -> 150 steps,

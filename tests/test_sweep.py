@@ -110,8 +110,9 @@ def test_ray_gives_the_rows_of_the_pool(tmp_path):
                                       rows(tmp_path / "pool" / name / "episodes.csv", keep_job=True))
 
 
-# behind slow: real workers, one killed (~9 s): a job that fails while the others finish is
-# test_a_nan_from_the_env_fails_that_job_with_where_and_the_others_finish's
+# behind slow: real workers, one killed (~9 s); a job that ended unfinished counted so is
+# test_a_job_that_ended_unfinished_counts_as_not_finished_in_the_progress_line's, finished jobs kept and
+# only the others run again test_a_plan_that_grew_keeps_the_finished_jobs_and_adds_the_new_ones's
 @pytest.mark.slow
 def test_a_killed_job_is_reported_the_others_finish_and_resume_completes_it(tmp_path):
     """SIGKILL one job's process once it has written rows: it is reported as killed with its
@@ -1043,28 +1044,38 @@ def test_max_job_minutes_splits_each_experiment_estimated_over_it():
     assert reproduce.job_seconds(planned, found, {}) == pytest.approx([start + 3000, start + 500])
 
 
-# behind slow: a real reproduction (~10 s): the split itself is
-# test_a_split_plan_gives_each_experiment_its_seeds_in_consecutive_groups's and
-# test_max_job_minutes_splits_each_experiment_estimated_over_it's
-@pytest.mark.slow
-def test_reproduce_runs_a_split_experiment_in_its_jobs_and_keeps_them_when_continued(tmp_path, capsys, monkeypatch):
-    """square-random (4 seeds) estimated at an hour: --max-job-minutes 40 runs it as two jobs of two
-    seeds each, whose rows are the experiment's; --plan says so; continued with another limit, the
-    run keeps the jobs it began with."""
-    # the estimate stubbed (the published rows' times are test_reproduce_plan's): an hour for square-random
+SPLIT_ARGS = ["--scale", "quick", "--only", "square", "--workers", "1", "--experiments", "square-random"]
+
+
+def estimated_an_hour(monkeypatch):
+    """The estimate stubbed (the published rows' times are test_reproduce_plan's): an hour for square-random."""
     monkeypatch.setattr(reproduce, "estimate", lambda planned, pub: [
         (n, 3600.0 if n == "square-random" else 10.0, "measured") for n in planned])
-    args = ["--scale", "quick", "--only", "square", "--workers", "1", "--experiments", "square-random"]
-    assert reproduce.main(args + ["--plan", "--max-job-minutes", "40"]) == 0
+
+
+def test_max_job_minutes_is_planned_as_jobs_and_must_be_positive(capsys, monkeypatch):
+    estimated_an_hour(monkeypatch)
+    assert reproduce.main(SPLIT_ARGS + ["--plan", "--max-job-minutes", "40"]) == 0
     assert "  square-random: 4 seeds x 30, ~60.0 min in 2 jobs (" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        reproduce.main(SPLIT_ARGS + ["--plan", "--max-job-minutes", "0"])
+    assert "must be a number of minutes > 0, got '0'" in capsys.readouterr().err
+
+
+# behind slow: a real reproduction (~10 s); the plan and the refusal are
+# test_max_job_minutes_is_planned_as_jobs_and_must_be_positive's, the split itself
+# test_a_split_plan_gives_each_experiment_its_seeds_in_consecutive_groups's
+@pytest.mark.slow
+def test_reproduce_runs_a_split_experiment_in_its_jobs_and_keeps_them_when_continued(tmp_path, monkeypatch):
+    """square-random (4 seeds) estimated at an hour: --max-job-minutes 40 runs it as two jobs of two
+    seeds each, whose rows are the experiment's; continued with another limit, the run keeps the jobs
+    it began with."""
+    estimated_an_hour(monkeypatch)
     out = tmp_path / "r"
-    assert reproduce.main(args + ["--out", str(out), "--max-job-minutes", "40"]) == 0
+    assert reproduce.main(SPLIT_ARGS + ["--out", str(out), "--max-job-minutes", "40"]) == 0
     jobs = sorted((out / "square-random" / "jobs").iterdir())
     assert [json.loads((j / "config.json").read_text())["run"]["seeds"] for j in jobs] == [[10, 11], [12, 13]]
     rows = pd.read_csv(out / "square-random" / "episodes.csv")
     assert sorted(set(rows.seed)) == [10, 11, 12, 13] and len(rows) == 120           # 4 seeds x 30 episodes
-    assert reproduce.main(args + ["--out", str(out), "--max-job-minutes", "1000"]) == 0
+    assert reproduce.main(SPLIT_ARGS + ["--out", str(out), "--max-job-minutes", "1000"]) == 0
     assert sorted(p.name for p in (out / "square-random" / "jobs").iterdir()) == ["j000", "j001"]
-    with pytest.raises(SystemExit):
-        reproduce.main(args + ["--plan", "--max-job-minutes", "0"])
-    assert "must be a number of minutes > 0, got '0'" in capsys.readouterr().err

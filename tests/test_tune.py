@@ -305,7 +305,9 @@ def test_reporting_seeds_cover_every_report_and_tuning_seeds_avoid_them():
 # ---------------------------------------------------------------- studies
 
 
-@pytest.mark.slow  # whole studies (~3 s): a study's count of trials in units is test_study_trials'
+# behind slow: whole studies (~3 s); trials run until the study is full is test_study_parts'
+# test_work_runs_trials_until_the_study_is_full
+@pytest.mark.slow
 def test_a_larger_trials_adds_trials_and_a_full_study_only_reports(tmp_path, capsys):
     out = str(tmp_path / "study")
     args = [*TINY, "--episodes", "2", "--out", out]
@@ -500,8 +502,9 @@ def test_per_dimension_weights_are_searched_as_factors_on_the_base_preset():
         with_ranges(space, ["lipschitz=1:4"], {"lipschitz": 5.0})                          # a scalar: not weights
 
 
-# behind slow: whole studies (~4 s): weights as factors in units are test_study_parts'
-# test_weights_given_on_the_command_line_are_the_base_their_factors_scale's
+# behind slow: whole studies (~4 s); weights as factors are test_study_parts'
+# test_weights_given_on_the_command_line_are_the_base_their_factors_scale and
+# test_per_dimension_weights_are_searched_as_factors_on_the_base_preset
 @pytest.mark.slow
 def test_a_study_searches_each_weight_of_the_metric(tmp_path, capsys):
     """--search state_scale=LOW:HIGH on weights given on the command line: the first trial runs them
@@ -974,7 +977,7 @@ def test_validate_keeps_each_value_in_the_study_and_refuses_a_study_without_a_co
         study.validation_seeds([1003, 1005])
 
 
-# behind slow: whole studies (~4 s): in units, test_study_validation's
+# behind slow: a study run to its end (~4 s): in units, test_study_validation's
 # test_an_unfinished_run_is_resumed_from_its_folder and test_a_run_with_other_settings_is_started_over
 @pytest.mark.slow
 def test_a_validation_run_goes_on_from_its_checkpoint_and_starts_over_for_other_settings(tmp_path, stop_run_after):
@@ -1038,3 +1041,13 @@ def test_a_count_of_env_steps_is_a_fraction_of_the_budget_and_at_least_one():
     assert space.suggest(optuna.trial.FixedTrial({"n_fraction": 0.05}), "n", 50) == 2       # 2.5 rounds to even
     assert space.suggest(optuna.trial.FixedTrial({"n_fraction": 0.25}), "n", 1000) == 250
     assert space.suggest(optuna.trial.FixedTrial({"n": 12}), "n", 0) == 12
+
+
+@pytest.mark.usefixtures("own_tuned_file")   # presets written to tmp_path/tuned.json
+def test_a_preset_records_the_search_ranges_its_study_was_given(tmp_path):
+    study = Study.open(tmp_path / "study", None, {"env": "square", "agent": "dqn", "episodes": "4"},
+                       {"search": "lr=0.0001:0.01,batch_size=32:64"})
+    study.load().add_trial(optuna.trial.create_trial(value=10.0, user_attrs={"settings": {"lr": 0.0002}}))
+    study.write_preset()
+    prov = json.loads((tmp_path / "tuned.json").read_text())["square"]["dqn"]["tuned"]["provenance"]
+    assert prov["search"] == ["lr=0.0001:0.01", "batch_size=32:64"]
