@@ -265,6 +265,7 @@ def test_given_settings_are_the_flags_given_and_each_set_not_the_process_flags()
     (["--goal", "-1e-2,-0.5,"], ["--goal=-1e-2,-0.5,"]),     # (-0.3,0.2 and --lam -1: test_run's)
     (["--goal", "-.5, 2"], ["--goal=-.5, 2"]),
     (["--goal", "-1E-2,3E+1"], ["--goal=-1E-2,3E+1"]),
+    (["--x", "-2.5"], ["--x", "-2.5"]),                                       # one negative number passes as is
     (["--goal=1,2", "-0.3,0.2"], ["--goal=1,2", "-0.3,0.2"]),                  # the flag has its value
     (["-x", "-0.3,0.2"], ["-x", "-0.3,0.2"]),                                  # not a long flag
     (["-0.3,0.2"], ["-0.3,0.2"]),                                              # no flag before it
