@@ -351,3 +351,13 @@ def test_a_build_in_blocks_of_rows_gives_the_scans_values(monkeypatch):
     monkeypatch.setattr(trl_dgpq.qhat, "BUILD_SLOTS", 8)
     for metric in ("l1", "l2"):
         check_index_against_scan(seed=3, metric=metric, dim=2, chunk=2, fan=2, lipschitz=1.0, grid=False)
+
+
+def test_an_empty_q_reads_v_max_and_one_pair_bounds_its_own_action_only():
+    """No pair: v_max for every seed and action. One pair (0, mu 1) for action 0 of seed 0 at L 2: at 0.5
+    it reads 1 + 2 x 0.5 = 2, and 1 + 2 x 60 = 121 is above v_max 100; action 1 and seed 1 read v_max."""
+    q = LipschitzQ(2, 2, 1, lipschitz=2.0, v_max=100.0)
+    assert torch.equal(q(t([[0.0], [3.0]])), t([[100.0, 100.0], [100.0, 100.0]]))
+    q.insert(t([[0.0], [0.0]]), torch.tensor([0, 0]), t([1.0, 1.0]), torch.tensor([True, False]))
+    assert torch.equal(q(t([[0.5], [0.5]])), t([[2.0, 100.0], [100.0, 100.0]]))
+    assert torch.equal(q(t([[60.0], [0.5]])), t([[100.0, 100.0], [100.0, 100.0]]))

@@ -140,6 +140,12 @@ def test_a_bad_setting_is_refused_before_any_work(ran, capsys):
     assert ran.calls == []
 
 
+def test_many_seeds_run_with_yes_without_asking(ran, monkeypatch):
+    monkeypatch.setattr("sys.stdin.isatty", lambda: False)      # (refused without --yes: test_commands')
+    assert train.main(["--agent", "random", "--seeds", "0-256", "--episodes", "1", "--yes"]) == 0
+    assert ran.calls[0] == ("memory", list(range(257)))
+
+
 @pytest.mark.parametrize("n, yes, answer, ok", [(256, False, None, True), (257, True, None, True),
                                                  (257, False, "y", True), (257, False, " YES ", True),
                                                  (257, False, "n", False), (257, False, "", False)])
