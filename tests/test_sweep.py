@@ -1008,6 +1008,17 @@ def test_the_plan_estimates_each_experiment_from_the_published_one_like_it(tmp_p
     got = {name: seconds for name, seconds, _ in reproduce.estimate(planned, tmp_path / "pub")}
     assert got["b"] == pytest.approx(1 + 2 * 4 * 0.5) and got["c"] == pytest.approx(1 + 2 * (10 * 1.4 + 10 * 2))
     assert "CPU time where recorded, else wall time" in reproduce.plan_text(planned, tmp_path / "pub")
+    # a published batch of 4 seeds at 1 s a seed-episode: a batch of fewer seeds costs as much per
+    # batched step (4 x 1 s an episode), one of more seeds 1 s a seed-episode
+    wide = resolve_config(env="corridor", agent="random", seeds=[1, 2, 3, 4], episodes=10)
+    pd.DataFrame(dict(seed=[1, 2, 3, 4] * 10, episode=sorted(list(range(1, 11)) * 4), steps=3, wall_s=1.0,
+                      cpu_s=1.0)).to_csv(data / "w.csv.xz", index=False)
+    (data / "w.json").write_text(json.dumps(wide))
+    (data / "manifest.json").write_text(json.dumps({"experiments": ["a", "w"]}))
+    batches = {f"r{n}": resolve_config(env="corridor", agent="random", seeds=list(range(10, 10 + n)), episodes=5)
+               for n in (1, 4, 6)}
+    got = {name: seconds for name, seconds, _ in reproduce.estimate(batches, tmp_path / "pub")}
+    assert got == {"r1": pytest.approx(1 + 4 * 5), "r4": pytest.approx(1 + 4 * 5), "r6": pytest.approx(1 + 6 * 5)}
     assert reproduce.main(["--scale", "smoke", "--only", "f16", "--plan", "--experiments", "f16-pd"]) == 0
     assert capsys.readouterr().out.startswith("  f16-pd: 1 seed x 3, ~")
 

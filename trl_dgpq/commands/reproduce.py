@@ -363,10 +363,9 @@ def like(config: dict, measured: dict, rows_of) -> tuple:
 
 # What a job costs besides its steps at the published per-seed rate: fitted, not measured. A job's start
 # (a worker forked, its env and agent built, its files written; not in the rows' wall_s) took 0.3-1.1 s
-# for a one-episode job from a warm forkserver (load ~6, 2026-11-28); the rest stands for what scaling
-# a published batch per seed misses at small batches (quiet, the quick scale's steps alone ran 1.33x
-# their estimate). Replayed on two quick-scale runs (108 jobs at load ~7, 58 at ~3), the sweep's
-# time-left guide was within 25 % (or 6 s) at 86 of 107 and 57 of 57 of its reports with 1 s; with
+# for a one-episode job from a warm forkserver (load ~6, 2026-11-28). (Before 2026-11-29 a job's seeds
+# were costed per seed at the published batch's rate, which a small batch runs 3.3x over at the median.)
+# Replayed on two quick-scale runs (108 jobs at load ~7, 58 at ~3), the sweep's time-left guide was within 25 % (or 6 s) at 86 of 107 and 57 of 57 of its reports with 1 s; with
 # 3 s, at 46 and 57 (it took the many small jobs at the end for longer ones). Measured quiet with 1 s:
 # 90 of 107 (docs/reproducing.md). All three before a running job kept a floor (sweep.running_left).
 JOB_START_S = 1.0
@@ -379,7 +378,8 @@ def estimate(planned: dict, publication: Path) -> list:
     one's time per step; else its seeds times its episodes times that one's time per seed-episode
     over its first as many episodes (learning changes what an episode costs): CPU time where its
     rows record it, else wall time (published before, on 2 loaded cores); plus
-    ``JOB_START_S``. A batch of another size costs otherwise per seed: an estimate, not a promise."""
+    ``JOB_START_S``. Its seeds count as the published batch's where they are fewer (a small batch costs
+    about as much per batched step): an estimate, not a promise."""
     from functools import cache
 
     from trl_dgpq.analysis import published
@@ -403,15 +403,18 @@ def estimate(planned: dict, publication: Path) -> list:
             out.append((name, None, "no published experiment like it"))
             continue
         rows, run = rows_of(source), config["run"]
+        # a batch of fewer seeds than the published one costs as much per batched step (its cost is the
+        # step's overhead more than its seeds': measured on the quick scale, 2026-11-29), more seeds per seed
+        seeds = max(len(run["seeds"]), len(measured[source]["run"]["seeds"]))
         if run.get("env_steps"):       # a budget, or its episodes at the published run's steps per episode
             steps = min(run["env_steps"], run["episodes"] * float(rows["steps"].mean()))
-            seconds = len(run["seeds"]) * steps * float(rows["spent"].sum() / rows["steps"].sum())
+            seconds = seeds * steps * float(rows["spent"].sum() / rows["steps"].sum())
         else:                          # its episodes at the time per seed-episode over as many episodes there
             ran = int(rows.episode.max())
             per = float(rows[rows.episode <= run["episodes"]]["spent"].mean())
             # a plan longer than the published run: its later episodes at the rate of its last 10 %
             tail = float(rows[rows.episode > 0.9 * ran]["spent"].mean())
-            seconds = len(run["seeds"]) * (per * min(run["episodes"], ran) + tail * max(0, run["episodes"] - ran))
+            seconds = seeds * (per * min(run["episodes"], ran) + tail * max(0, run["episodes"] - ran))
         out.append((name, JOB_START_S + seconds, how))
     return out
 
