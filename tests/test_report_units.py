@@ -61,27 +61,20 @@ def test_a_run_without_a_config_is_not_checked():
 # ---------------------------------------------------------------- the profiles figure
 
 
-def drawn_profiles(monkeypatch, tmp_path, scores, curves=None):
-    """profile_figure on ``scores`` with ``save`` (and, given ``curves``, rliable's profiles) stubbed:
-    the axes it drew."""
-    drawn = {}
-
-    def save(fig, path):
-        drawn["fig"] = fig
-        return path
-    monkeypatch.setattr("trl_dgpq.analysis.figures.save", save)
+def drawn_profiles(monkeypatch, saved_figures, tmp_path, scores, curves=None):
+    """profile_figure on ``scores`` (given ``curves``, with rliable's profiles stubbed): the axes it drew."""
     if curves is not None:
         monkeypatch.setattr(rp, "profiles", lambda s, taus: curves(s, taus))
     assert rp.profile_figure(scores, tmp_path) == tmp_path / "profiles.png"
-    return drawn["fig"].axes[0]
+    return saved_figures["profiles.png"].axes[0]
 
 
 SCORES = {"dgpq": {"t1": np.array([0.0, 1.0, 2.0]), "t2": np.array([5.0, 5.0, 6.0])},
           "dqn": {"t1": np.array([1.0, 1.0, 1.0]), "t2": np.array([4.0, 4.0, 4.0])}}
 
 
-def test_the_profiles_figure_draws_each_agents_fraction_above_each_tau(monkeypatch, tmp_path):
-    ax = drawn_profiles(monkeypatch, tmp_path, SCORES)
+def test_the_profiles_figure_draws_each_agents_fraction_above_each_tau(monkeypatch, saved_figures, tmp_path):
+    ax = drawn_profiles(monkeypatch, saved_figures, tmp_path, SCORES)
     lines = {line.get_label(): line for line in ax.get_lines()}
     assert set(lines) == {"dgpq (2 tasks x 3 seeds)", "dqn (2 tasks x 3 seeds)"}
     taus = np.linspace(0.0, 1.0, 51)
@@ -97,7 +90,7 @@ def test_the_profiles_figure_draws_each_agents_fraction_above_each_tau(monkeypat
     assert [t.get_text() for t in ax.get_legend().get_texts()] == list(lines)
 
 
-def test_each_agents_band_is_its_interval_in_its_curves_colour(monkeypatch, tmp_path):
+def test_each_agents_band_is_its_interval_in_its_curves_colour(monkeypatch, saved_figures, tmp_path):
     """rliable's profiles stubbed: a curve of 0.5 with the band [0.2, 0.9] for dgpq, 0.1 in [0, 0.3] for dqn."""
     import matplotlib.colors
 
@@ -106,7 +99,7 @@ def test_each_agents_band_is_its_interval_in_its_curves_colour(monkeypatch, tmp_
         assert n == 51 and taus[0] == 0.0 and taus[-1] == 1.0
         return ({"dgpq": np.full(n, 0.5), "dqn": np.full(n, 0.1)},
                 {"dgpq": (np.full(n, 0.2), np.full(n, 0.9)), "dqn": (np.full(n, 0.0), np.full(n, 0.3))})
-    ax = drawn_profiles(monkeypatch, tmp_path, SCORES, curves)
+    ax = drawn_profiles(monkeypatch, saved_figures, tmp_path, SCORES, curves)
     lines = ax.get_lines()
     assert [set(line.get_ydata()) for line in lines] == [{0.5}, {0.1}]
     for band, line, (lo, hi) in zip(ax.collections, lines, [(0.2, 0.9), (0.0, 0.3)]):
@@ -213,36 +206,24 @@ def test_a_group_is_named_by_the_settings_it_differs_in_from_its_envs_other_grou
     assert rp.group_name("liquidation", {"a": 1}, [{"a": 1}]) == "liquidation"
 
 
-def drawn_report(monkeypatch, runs, out, **kw):
-    """report() with ``save`` stubbed: (its text, {figure name: axes})."""
-    figures = {}
-
-    def save(fig, path):
-        figures[path.name] = fig.axes[0]
-        path.touch()
-        return path
-    monkeypatch.setattr("trl_dgpq.analysis.figures.save", save)
-    return rp.report(runs, None, out, **kw)[1], figures
-
-
-def test_the_budget_given_bounds_the_threshold_and_the_at_budget_window(monkeypatch, tmp_path):
+def test_the_budget_given_bounds_the_threshold_and_the_at_budget_window(tmp_path):
     """Episodes 1-6 of 30 steps, 7-12 of 10: over 10 episodes the mean first meets 25 at episode 10
     (22 steps, 220 env steps); within a budget of 120 env steps a seed ran 4 episodes of 30."""
     r = square_run(30, "dgpq", "runs/a")
     r.df["steps"] = [30] * 6 + [10] * 6 + [30] * 6 + [10] * 6
     r.df["env_steps"] = r.df.groupby("seed")["steps"].cumsum()
-    text, _ = drawn_report(monkeypatch, [r], tmp_path)
+    text = rp.report([r], None, tmp_path)[1]
     assert "| dgpq shaped | 2 | 220 (2/2 seeds met it) | 220 [220, 220] | 18 [18, 18] | 18 [18, 18] |" in text
-    text, _ = drawn_report(monkeypatch, [r], tmp_path, budget=120)
+    text = rp.report([r], None, tmp_path, budget=120)[1]
     assert "| dgpq shaped | 2 | never (0/2 seeds met it) | 120 [120, 120] | 30 [30, 30] | 30 [30, 30] |" in text
 
 
-def test_the_comparison_figure_draws_each_runs_median_and_iqr_against_env_steps_and_the_threshold(monkeypatch,
+def test_the_comparison_figure_draws_each_runs_median_and_iqr_against_env_steps_and_the_threshold(saved_figures,
                                                                                                   tmp_path):
     import matplotlib.colors
     runs = [square_run(20, "dgpq", "runs/a"), square_run(40, "dqn", "runs/b")]
-    _, figures = drawn_report(monkeypatch, runs, tmp_path)
-    ax = figures["compare-square.png"]
+    rp.report(runs, None, tmp_path)
+    ax = saved_figures["compare-square.png"].axes[0]
     grid = np.linspace(0, 240, 200)[1:]
     lines = {line.get_label(): line for line in ax.get_lines()}
     assert list(lines) == ["dgpq shaped (2 seeds)", "dqn shaped (2 seeds)", "threshold"]
@@ -262,19 +243,19 @@ def test_the_comparison_figure_draws_each_runs_median_and_iqr_against_env_steps_
     assert [t.get_text() for t in ax.get_legend().get_texts()] == list(lines)
 
 
-def test_a_domain_without_a_threshold_says_so_and_leaves_those_cells_empty(monkeypatch, tmp_path):
+def test_a_domain_without_a_threshold_says_so_and_leaves_those_cells_empty(saved_figures, tmp_path):
     df = pd.DataFrame([dict(seed=s, episode=e, steps=10, cost_ratio=1.5, wall_s=0.1) for s in (0, 1)
                        for e in (1, 2, 3)])
     df["env_steps"] = df.groupby("seed")["steps"].cumsum()
     config = {"run": {"env": "liquidation", "agent": "twap", "preset": "flat", "seeds": [0, 1], "episodes": 3},
               "env": {}, "agent": {}}
-    text, figures = drawn_report(monkeypatch, [Run(Path("runs/l"), df, config)], tmp_path)
+    text = rp.report([Run(Path("runs/l"), df, config)], None, tmp_path)[1]
     assert "Threshold: none defined. At budget:" in text
     assert "| twap flat | 2 | – | – | 1.5 [1.5, 1.5] | 1.5 [1.5, 1.5] | – | 10.00 |" in text
-    assert [line.get_label() for line in figures["compare-liquidation.png"].get_lines()] == ["twap flat (2 seeds)"]
+    assert [line.get_label() for line in saved_figures["compare-liquidation.png"].axes[0].get_lines()] == ["twap flat (2 seeds)"]
 
 
-def test_runs_of_two_tasks_get_a_table_each_named_by_what_differs_and_the_profiles_under_them(monkeypatch,
+def test_runs_of_two_tasks_get_a_table_each_named_by_what_differs_and_the_profiles_under_them(saved_figures,
                                                                                                tmp_path):
     runs = []
     for noise, path in ((0.1, "runs/a"), (0.2, "runs/b")):
@@ -282,10 +263,10 @@ def test_runs_of_two_tasks_get_a_table_each_named_by_what_differs_and_the_profil
             r = square_run(steps, agent, f"{path}-{agent}")
             r.config["env"] = {"noise": noise, "goal_radius": 0.15}
             runs.append(r)
-    text, figures = drawn_report(monkeypatch, runs, tmp_path)
+    text = rp.report(runs, None, tmp_path)[1]
     headings = [line for line in text.split("\n") if line.startswith("## ")]
     assert headings == ["## square (noise=0.1)", "## square (noise=0.2)"]
-    assert sorted(figures) == ["compare-square-noise-0.1.png", "compare-square-noise-0.2.png", "profiles.png"]
+    assert sorted(saved_figures) == ["compare-square-noise-0.1.png", "compare-square-noise-0.2.png", "profiles.png"]
     assert text.endswith("\n![profiles](profiles.png)\n")
     table = pd.read_csv(tmp_path / "results.csv")
     assert list(table.iloc[:, 0]) == ["dgpq shaped", "dqn shaped"] * 2
