@@ -361,13 +361,14 @@ def like(config: dict, measured: dict, rows_of) -> tuple:
     return best, f"like {best}, {count(fewest, 'setting')} apart"
 
 
-# What a job costs besides its steps at the published per-seed rate: fitted, not measured. A job's start
+# What a job costs besides its steps at the published rate: fitted, not measured. A job's start
 # (a worker forked, its env and agent built, its files written; not in the rows' wall_s) took 0.3-1.1 s
 # for a one-episode job from a warm forkserver (load ~6, 2026-11-28). (Before 2026-11-29 a job's seeds
 # were costed per seed at the published batch's rate, which a small batch runs 3.3x over at the median.)
-# Replayed on two quick-scale runs (108 jobs at load ~7, 58 at ~3), the sweep's time-left guide was within 25 % (or 6 s) at 86 of 107 and 57 of 57 of its reports with 1 s; with
-# 3 s, at 46 and 57 (it took the many small jobs at the end for longer ones). Measured quiet with 1 s:
-# 90 of 107 (docs/reproducing.md). All three before a running job kept a floor (sweep.running_left).
+# Replayed on two quick-scale runs (108 jobs at load ~7, 58 at ~3), the sweep's time-left guide was
+# within 25 % (or 6 s) at 86 of 107 and 57 of 57 of its reports with 1 s; with 3 s, at 46 and 57 (it
+# took the many small jobs at the end for longer ones). Measured quiet with 1 s: 90 of 107
+# (docs/reproducing.md). All three before a running job kept a floor (sweep.running_left).
 JOB_START_S = 1.0
 PUBLICATION = Path(__file__).resolve().parents[2] / "results" / "report"   # the times --plan estimates from
 
