@@ -1,4 +1,5 @@
-"""IQM, probability of improvement and profiles (trl_dgpq/analysis/stats.py, via rliable), by hand."""
+"""IQM, probability of improvement and profiles (trl_dgpq/analysis/stats.py), by hand and against
+rliable's own calls, bit for bit."""
 import warnings
 
 import numpy as np
@@ -13,7 +14,7 @@ def test_iqm_is_the_mean_of_the_middle_half_and_its_interval_holds_it():
     assert point == pytest.approx((3 + 4 + 5 + 6) / 4)
     assert 1.0 <= lo <= point <= hi <= 8.0 and lo < hi
     before = np.random.get_state()[1].copy()
-    for _ in range(3):   # rliable resamples from numpy's global generator: seeded per call, then restored
+    for _ in range(3):   # drawn from a generator of its own, the same every call; numpy's global one untouched
         assert iqm([8.0, 1.0, 7.0, 2.0, 6.0, 3.0, 5.0, 4.0]) == (point, lo, hi)
     assert np.array_equal(np.random.get_state()[1], before)
     assert np.isnan(iqm([np.nan])[0])
@@ -60,9 +61,8 @@ def test_a_task_every_run_tied_on_is_one_half_and_runs_are_cut_to_the_fewest_ove
 
 
 def test_intervals_are_the_same_in_another_process():
-    """rliable resamples from numpy's global generator, which a new process starts from fresh
-    entropy: the intervals must not depend on it (seeded per call), so a second process computes
-    the same numbers, not only a second call here."""
+    """numpy's global generator starts a new process from fresh entropy: the intervals must not
+    depend on it, so a second process computes the same numbers, not only a second call here."""
     import subprocess
     import sys
     x, y = [8.0, 1.0, 7.0, 2.0, 6.0, 3.0, 5.0, 4.0], [3.0, 4.0, 5.0, 1.0, 2.5]
@@ -71,6 +71,58 @@ def test_intervals_are_the_same_in_another_process():
     there = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     here = (iqm(x, reps=300), probability_of_improvement(x, y, reps=300))
     assert there.stdout.strip() == repr(here)
+
+
+def rliables(estimate, reps, *scores):
+    """rliable's own ``get_interval_estimates`` as this module's callers used it: its indices drawn
+    from numpy's global generator, seeded at stats.SEED for the call (and restored after), arch's
+    RandomState warning hidden: ({key: point}, {key: (2, k) interval})."""
+    import warnings as w
+    from rliable import library
+    saved = np.random.get_state()
+    np.random.seed(stats.SEED)
+    try:
+        with w.catch_warnings():
+            w.simplefilter("ignore", FutureWarning)
+            return library.get_interval_estimates(*scores, estimate, reps=reps,
+                                                  random_state=np.random.RandomState(stats.SEED))
+    finally:
+        np.random.set_state(saved)
+
+
+def test_intervals_are_rliables_own_bit_for_bit():
+    """Every point and interval equals rliable's ``get_interval_estimates`` on the same scores, to
+    the last bit: the IQM over 1-30 runs (the cut's rounding, ties), P(X > Y) on runs of equal and
+    of unequal length (their draws interleave), and the profiles of three algorithms over two tasks
+    (drawn in turn from one stream)."""
+    from rliable import library, metrics
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        n, m = (int(k) for k in rng.integers(1, 31, size=2))
+        if trial % 4 == 0:
+            m = n
+        draw = (lambda k: rng.integers(0, 4, size=k).astype(float)) if trial % 3 == 0 else \
+            (lambda k: rng.normal(size=k) * 10 ** rng.uniform(-3, 6))
+        x, y, reps = draw(n), draw(m), int(rng.integers(20, 400))
+        point, ci = rliables(lambda a: np.array([metrics.aggregate_iqm(a)]), reps, {"x": x[:, None]})
+        assert iqm(x, reps=reps) == (point["x"][0], ci["x"][0, 0], ci["x"][1, 0])
+        point, ci = rliables(lambda a, b: np.array([metrics.probability_of_improvement(a, b)]), reps,
+                             {"p": [x[:, None], y[:, None]]})
+        assert probability_of_improvement(x, y, reps=reps) == (point["p"][0], ci["p"][0, 0], ci["p"][1, 0])
+    scores = {k: rng.uniform(size=(int(rng.integers(2, 9)), 2)) for k in ("a", "b", "c")}
+    taus = np.linspace(0.0, 1.0, 11)
+    points, cis = rliables(lambda s: library.score_distributions(s, taus), 300, scores)
+    mine = profiles(scores, taus, reps=300)
+    for k in scores:
+        assert np.array_equal(mine[0][k], points[k]) and np.array_equal(mine[1][k], cis[k])
+        assert mine[1][k].shape == (2, len(taus))
+
+
+def test_an_empty_side_has_no_interval_and_scores_must_be_runs_by_tasks():
+    assert all(np.isnan(probability_of_improvement([np.nan], [1.0, 2.0])))
+    assert all(np.isnan(probability_of_improvement([1.0], [])))
+    with pytest.raises(ValueError, match=r"\(runs, tasks\)"):
+        profiles({"a": np.ones(3)}, np.array([0.5]), reps=10)
 
 
 def test_per_replication_statistics_are_rliables_bit_for_bit():
@@ -108,31 +160,24 @@ def test_the_default_replications_are_reps_at_the_call(monkeypatch):
         assert np.array_equal(x, y)
 
 
-def test_quiet_draws_from_seed_0_puts_numpys_generator_back_and_hides_only_arch_s_warning():
-    """A bootstrap wrapped by ``_quiet`` sees numpy's global generator seeded at 0 (rliable draws its
-    indices there), whatever it was; afterwards the generator is where it was; arch's
-    "random_state is deprecated" FutureWarning is hidden and any other warning is not; arguments
-    pass through."""
-    from trl_dgpq.analysis.stats import _quiet
-
-    @_quiet
-    def draw(n, *, scale):
-        warnings.warn("random_state is deprecated", FutureWarning)
-        return np.random.random_sample(n) * scale
-
+def test_a_bootstrap_leaves_numpys_global_generator_alone_and_warns_nothing():
+    """rliable draws from numpy's global generator; these draw from their own: whatever the global
+    one's state, the intervals are the same, and it is where it was afterwards."""
+    v, w = [3.0, 1.0, 4.0, 1.0, 5.0, 9.0], [2.0, 6.0, 5.0]
     np.random.seed(123)
+    first = (iqm(v, reps=100), probability_of_improvement(v, w, reps=100),
+             profiles({"a": np.array([[0.1], [0.7]])}, np.array([0.5]), reps=100)[1]["a"].tolist())
     expect_after = np.random.RandomState(123).random_sample(2)
+    np.random.seed(7)
+    np.random.random_sample(5)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        got = draw(3, scale=2.0)
-    assert np.array_equal(got, np.random.RandomState(0).random_sample(3) * 2.0)
+        again = (iqm(v, reps=100), probability_of_improvement(v, w, reps=100),
+                 profiles({"a": np.array([[0.1], [0.7]])}, np.array([0.5]), reps=100)[1]["a"].tolist())
+    assert again == first
+    np.random.seed(123)
+    iqm(v, reps=100), probability_of_improvement(v, w, reps=100)
     assert np.array_equal(np.random.random_sample(2), expect_after)
-
-    @_quiet
-    def other():
-        warnings.warn("something else", FutureWarning)
-    with pytest.warns(FutureWarning, match="something else"):
-        other()
 
 
 def test_oriented_scores_are_floats_negated_where_less_is_better():
