@@ -261,9 +261,9 @@ def test_the_reproduction_runs_each_learner_at_the_comparisons_budget_and_dqn_at
     assert set(experiments("smoke", ["gym"])) == {n for n in plan if n.startswith("cartpole-")}
     from trl_dgpq.envs.gym.analysis import reproductions
     sizes = {name: own for name, _, own in reproductions()}
-    assert sizes["cartpole-dqn-zoo"] == {"smoke": (1, 100_000, 300), "quick": (3, 100_000, 2_000),
+    assert sizes["cartpole-dqn-zoo"] == {"smoke": (1, 100_000, 300), "quick": (2, 100_000, 1_100),
                                          "full": (10, 100_000, 50_000), "report": (10, 100_000, 50_000)}
-    assert sizes["mountaincar-dgpq"] == {"quick": (3, 100_000, 3_000), "full": (10, 100_000, 30_000),
+    assert sizes["mountaincar-dgpq"] == {"quick": (2, 100_000, 1_100), "full": (10, 100_000, 30_000),
                                          "report": (10, 100_000, 30_000)}   # no smoke: one task is enough
     assert sizes["cartpole-dgpq"]["smoke"] == (1, 100_000, 300)
     assert all(isinstance(steps, int) for own in sizes.values() for _, _, steps in own.values())

@@ -64,9 +64,23 @@ def test_each_task_claims_dgpq_faster_default_against_default_and_tuned_against_
 @pytest.mark.parametrize("smoke", [True, False])
 def test_each_scale_runs_its_seeds_for_its_share_of_the_budget(smoke):
     sizes = ga.budget_sizes(20_000, smoke)
-    assert sizes["quick"] == (3, ga.CAP, 2_000) and sizes["full"] == sizes["report"] == (10, ga.CAP, 20_000)
+    assert sizes["quick"] == (2, ga.CAP, 1_100) and sizes["full"] == sizes["report"] == (10, ga.CAP, 20_000)
     assert ("smoke" in sizes) == smoke and (not smoke or sizes["smoke"] == (1, ga.CAP, 300))
-    assert ga.budget_sizes(50_000, smoke, quick=30_000)["quick"] == (3, ga.CAP, 3_000)
+    assert ga.budget_sizes(50_000, smoke)["quick"] == (2, ga.CAP, 1_100)
+
+
+def test_the_quick_scale_runs_past_every_dqn_presets_warm_up():
+    """The quick scale checks that each experiment learns: each DQN seed takes env steps past its
+    preset's ``learning_starts`` (random actions only until then) to a step that updates (CartPole's
+    default: 1,024, after 1,000 at a train_freq of 256)."""
+    from trl_dgpq.commands import reproduce
+    planned = reproduce.experiments("quick", ["gym"])
+    assert sum(c["run"]["agent"] == "dqn" for c in planned.values()) == 9   # default, tuned, zoo on each task
+    for name, config in planned.items():
+        if config["run"]["agent"] == "dqn":
+            starts, freq = config["agent"]["learning_starts"], config["agent"]["train_freq"]
+            first_update = (starts // freq + 1) * freq          # the first step past the warm-up train_freq divides
+            assert config["run"]["env_steps"] >= first_update, (name, starts, freq)
 
 
 def test_the_reproduction_runs_each_learner_on_its_default_and_tuned_presets_and_dqn_at_the_zoos_budget():
@@ -75,7 +89,7 @@ def test_the_reproduction_runs_each_learner_on_its_default_and_tuned_presets_and
     assert got["cartpole-dqn-zoo"][0] == dict(env="gym:CartPole-v1", agent="dqn", preset="zoo")
     assert "smoke" in got["cartpole-dqn"][1] and "smoke" not in got["acrobot-dqn"][1]     # the first task only
     assert got["mountaincar-dqn"][1]["full"] == (10, ga.CAP, 30_000)
-    assert got["acrobot-dqn-zoo"][1]["quick"] == (3, ga.CAP, 2_000)                     # a tenth of the task's
+    assert got["acrobot-dqn-zoo"][1]["quick"] == (2, ga.CAP, 1_100)                     # as every task's
     assert got["acrobot-dqn-zoo"][1]["full"][2] > 20_000                                 # the zoo's own budget
 
 

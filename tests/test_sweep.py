@@ -1067,7 +1067,7 @@ def estimated_an_hour(monkeypatch):
 def test_max_job_minutes_is_planned_as_jobs_and_must_be_positive(capsys, monkeypatch):
     estimated_an_hour(monkeypatch)
     assert reproduce.main(SPLIT_ARGS + ["--plan", "--max-job-minutes", "40"]) == 0
-    assert "  square-random: 4 seeds x 30, ~60.0 min in 2 jobs (" in capsys.readouterr().out
+    assert "  square-random: 4 seeds x 15, ~60.0 min in 2 jobs (" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         reproduce.main(SPLIT_ARGS + ["--plan", "--max-job-minutes", "0"])
     assert "must be a number of minutes > 0, got '0'" in capsys.readouterr().err
@@ -1087,6 +1087,6 @@ def test_reproduce_runs_a_split_experiment_in_its_jobs_and_keeps_them_when_conti
     jobs = sorted((out / "square-random" / "jobs").iterdir())
     assert [json.loads((j / "config.json").read_text())["run"]["seeds"] for j in jobs] == [[10, 11], [12, 13]]
     rows = pd.read_csv(out / "square-random" / "episodes.csv")
-    assert sorted(set(rows.seed)) == [10, 11, 12, 13] and len(rows) == 120           # 4 seeds x 30 episodes
+    assert sorted(set(rows.seed)) == [10, 11, 12, 13] and len(rows) == 60            # 4 seeds x 15 episodes
     assert reproduce.main(SPLIT_ARGS + ["--out", str(out), "--max-job-minutes", "1000"]) == 0
     assert sorted(p.name for p in (out / "square-random" / "jobs").iterdir()) == ["j000", "j001"]

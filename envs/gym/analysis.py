@@ -34,11 +34,13 @@ BUDGETS = {"CartPole-v1": 20_000, "MountainCar-v0": 30_000, "Acrobot-v1": 20_000
 CAP = 100_000  # episodes: each seed's env-step budget ends it
 
 
-def budget_sizes(budget: int, smoke: bool, quick: int = 0) -> dict:
+QUICK_STEPS = 1_100   # env steps per seed at the quick scale: past every DQN preset's first update (1,024)
+
+
+def budget_sizes(budget: int, smoke: bool) -> dict:
     """(seeds, episodes, env steps per seed) per scale; the smoke scale runs one task only. The quick
-    scale checks that each experiment runs (it decides no claim): a tenth of ``quick``, by default
-    of ``budget``."""
-    sizes = {"quick": (3, CAP, (quick or budget) // 10), "full": (10, CAP, budget), "report": (10, CAP, budget)}
+    scale checks that each experiment runs and learns (it decides no claim): 2 seeds, ``QUICK_STEPS`` each."""
+    sizes = {"quick": (2, CAP, QUICK_STEPS), "full": (10, CAP, budget), "report": (10, CAP, budget)}
     return {"smoke": (1, CAP, 300), **sizes} if smoke else sizes
 
 
@@ -54,12 +56,12 @@ def reproductions() -> list:
                     out.append((f"{tag}-{agent}" + ("-tuned" if preset == TUNED else ""),
                                 dict(env=env, agent=agent, preset=preset), budget_sizes(budget, k == 0)))
         out.append((f"{tag}-dqn-zoo", dict(env=env, agent="dqn", preset="zoo"),
-                    budget_sizes(ZOO_DQN[env_id]["n_timesteps"], k == 0, quick=budget)))   # quick: as the rest
+                    budget_sizes(ZOO_DQN[env_id]["n_timesteps"], k == 0)))
     return out
 
 
 REPRODUCE = reproductions()
-SCALES = {"smoke": (1, CAP, "300"), "quick": (3, CAP, "2,000-3,000"),
+SCALES = {"smoke": (1, CAP, "300"), "quick": (2, CAP, f"{QUICK_STEPS:,}"),
           **{s: (10, CAP, "20,000-120,000") for s in ("full", "report")}}   # for the label only
 
 

@@ -63,7 +63,7 @@ MEASURES = {"cost_ratio": "paired ac_cost / U*", "noise_free_cost_ratio": "noise
 SMALL_TD3 = dict(actor_hidden=(24, 48), critic_hidden=(24, 48))    # DDPG's widths (DDPGConfig's defaults)
 STUDY = dict(trials=30, seeds="1000-1004", env_steps=STEPS, episodes=100_000, objective="measure",
              window=STEP_WINDOW, validate=3, validation_seeds="1005-1014", sampler_seed=0)
-SCALES = {"smoke": (1, 4), "quick": (2, 100), "full": (10, EPISODES), "report": (10, EPISODES)}
+SCALES = {"smoke": (1, 4), "quick": (2, 40), "full": (10, EPISODES), "report": (10, EPISODES)}
 TITLE = "Liquidation on one reward: DGPQ, DQN, DDPG and TD3 on `shortfall` and on `impact`, tuned alike"
 SUMMARY = ("DGPQ, DQN, DDPG and TD3 (at DDPG's widths), each trained on the model-free shortfall reward and on the "
            "impact reward (which uses the AC model), each with the preset its own 30-trial study chose and "

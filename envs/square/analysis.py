@@ -29,7 +29,7 @@ SUMMARY = ("DGPQ on GWH14's own reward (-1 per step, `paper`), on the seed repor
            "the learner where the goal is: a variant using the model) and with the seed report's own settings, "
            'an RBF against a manifold kernel, and a random walk on each reward as the trivial baseline.')
 # (seeds, episodes) at each scale; an experiment may name its own as a third item
-SCALES = {"smoke": (1, 3), "quick": (4, 30), "full": (10, 100), "report": (10, 100)}
+SCALES = {"smoke": (1, 3), "quick": (4, 15), "full": (10, 100), "report": (10, 100)}
 NO_CAP = 20_000   # steps: 4x the seed report's 5,000, far past GWH14's ~100
 # an experiment of this domain reproduced apart (its own --only name): the module holding its plan
 APART = {"square-paper-tuned": "paper_tuned"}

@@ -32,7 +32,7 @@ TITLE = "The square on GWH14's own reward, DGPQ and DQN tuned alike and validate
 SUMMARY = ("DGPQ and DQN on GWH14's reward (-1 per step), each with the preset its own 30-trial study chose and "
            "validated on other seeds, 20 seeds within a 10,000-step budget, episodes capped only at 20,000 steps; "
            "a random walk as the trivial baseline.")
-SCALES = {"smoke": (1, 3, 600), "quick": (4, 20, 2000), "full": (20, 100, BUDGET), "report": (20, 100, BUDGET)}
+SCALES = {"smoke": (1, 3, 600), "quick": (4, 10, 1000), "full": (20, 100, BUDGET), "report": (20, 100, BUDGET)}
 LEARNERS = {"square-pt-dgpq": "dgpq", "square-pt-dqn": "dqn"}
 REPRODUCE = [(name, dict(agent=agent, preset="paper-validated", max_steps=NO_CAP)) for name, agent in LEARNERS.items()]
 REPRODUCE.append(("square-pt-random", dict(agent="random", preset="paper", max_steps=NO_CAP)))
