@@ -894,14 +894,31 @@ def fake_context(monkeypatch, **hooks):
             return FakeProcess(**kwargs, **hooks)
 
         def set_forkserver_preload(self, modules):
-            pass
+            Context.preload = list(modules)
     monkeypatch.setattr(sweep.mp, "get_context", lambda method: Context())
     monkeypatch.setattr(sweep, "wait", lambda sentinels: sentinels[:1])
+    return Context
 
 
 def sigterm_self():
     os.kill(os.getpid(), signal.SIGTERM)
     time.sleep(0.05)       # the handler runs by now
+
+
+def test_workers_come_from_a_forkserver_that_imported_each_jobs_env_and_agent(tmp_path, monkeypatch):
+    """The forkserver preloads this module and every job's env and agent modules, so no job imports
+    them again; a config without an env and agent (a test's) adds none."""
+    configs = [resolve_config(env="square", agent="dgpq", seeds=[0], episodes=1),
+               resolve_config(env="liquidation", agent="twap", seeds=[0], episodes=1),
+               resolve_config(env="square", agent="random", seeds=[1], episodes=1)]
+    assert sweep.job_modules(configs) == sorted({"trl_dgpq.collectors.sweep", "trl_dgpq.dgpq",
+                                                 "trl_dgpq.agents.random", "trl_dgpq.envs.square.env",
+                                                 "trl_dgpq.envs.liquidation.env", "trl_dgpq.envs.liquidation.baselines"})
+    assert sweep.job_modules([{}, {"run": {"env": "square"}}]) == ["trl_dgpq.collectors.sweep"]
+    context = fake_context(monkeypatch)
+    jobs = [sweep.Job("e", k, c["run"]["seeds"], str(tmp_path / f"j{k}"), c) for k, c in enumerate(configs)]
+    sweep.run_local(jobs, 2, lambda job, out: None)
+    assert context.preload == sweep.job_modules(configs) and len(FakeProcess.made) == 3
 
 
 def test_a_sigterm_while_a_worker_starts_still_stops_that_worker(tmp_path, monkeypatch):
