@@ -100,11 +100,13 @@ def minutes_left(minutes: float, done: List[Job], left: List[Job],
 OVERRUN = 0.25   # a running job has at least this share of what it has run to go (from 80 % of its estimate on)
 
 
-def rate(done: List[tuple], cost: Callable[[Job], float] = planned_seed_steps) -> Optional[float]:
+def rate(done: List[tuple], cost: Callable[[Job], float] = planned_seed_steps, prior: float = 0.0) -> Optional[float]:
     """Seconds per unit of ``cost`` the ``done`` jobs took ([(job, seconds from its start to its
-    end)]); None before any has ended with a positive cost."""
+    end)]), with ``prior`` units of cost counted as taken at one second each (for a cost in
+    estimated seconds: the estimate trusted as much as that many seconds of jobs run); None before
+    any has ended with a positive cost."""
     spent = sum(cost(job) for job, _ in done)
-    return sum(seconds for _, seconds in done) / spent if spent > 0 else None
+    return (sum(seconds for _, seconds in done) + prior) / (spent + prior) if spent > 0 else None
 
 
 def running_left(expected: float, ran: float) -> float:
@@ -115,16 +117,16 @@ def running_left(expected: float, ran: float) -> float:
 
 
 def seconds_left(done: List[tuple], running: List[tuple], pending: List[Job], workers: int,
-                 cost: Callable[[Job], float] = planned_seed_steps) -> Optional[float]:
+                 cost: Callable[[Job], float] = planned_seed_steps, prior: float = 0.0) -> Optional[float]:
     """Seconds until the last job ends: every job takes its ``cost`` times the seconds per unit of
-    cost the ``done`` jobs took (``rate``); a ``running`` one ([(job, seconds it has run)]) what it
+    cost the ``done`` jobs took (``rate``, with ``prior``); a ``running`` one ([(job, seconds it has run)]) what it
     has left (``running_left``); the ``pending`` ones, in the order they start, each to the worker
     free first. A sum of costs over a rate would miss the tail: one long job left on one of two
     workers takes all its time, not half. None until a job has finished with a positive cost."""
     import heapq
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
-    per = rate(done, cost)
+    per = rate(done, cost, prior)
     if per is None:
         return None
     free = [running_left(cost(job) * per, ran) for job, ran in running] + [0.0] * max(workers - len(running), 0)
@@ -541,11 +543,11 @@ def load(out) -> tuple:
 
 def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int] = None,
             ray_address: Optional[str] = None, cpus_per_job: float = 1, log=print,
-            cost: Callable[[Job], float] = planned_seed_steps) -> dict:
+            cost: Callable[[Job], float] = planned_seed_steps, prior: float = 0.0) -> dict:
     """Run the jobs that have not finished; merge each experiment as soon as its jobs all
     have (so that a sweep of many hours can be read before it ends: ``reproduce --report``).
-    ``cost`` weighs the jobs for the time-left guide (``seconds_left``; ``minutes_left`` on Ray). Returns the report {job
-    name: outcome} (also in OUT/report.json)."""
+    ``cost`` weighs the jobs for the time-left guide (``seconds_left``, with ``prior``; ``minutes_left`` on
+    Ray). Returns the report {job name: outcome} (also in OUT/report.json)."""
     if backend not in BACKENDS:
         raise SweepError(f"backend must be one of {BACKENDS}, got {backend!r}")
     out = Path(out)
@@ -580,9 +582,9 @@ def execute(out, jobs: List[Job], backend: str = "local", workers: Optional[int]
             running = [(j, now - started[j.name]) for j in rest if j.name in started]
             pending = [j for j in rest if j.name not in started]
             busy = min(pool, left)   # the pool refills at once
-            seconds = seconds_left(took, running, pending, pool, cost)
+            seconds = seconds_left(took, running, pending, pool, cost, prior)
             guess = None if seconds is None else seconds / 60
-            per = rate(took, cost)
+            per = rate(took, cost, prior)
             over = 0 if per is None else sum(cost(j) * per < ran for j, ran in running)
         else:   # Ray schedules what it was given and does not say when each job starts
             busy, guess, over = 0, minutes_left(minutes, finished, rest, cost), 0

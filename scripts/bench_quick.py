@@ -57,10 +57,10 @@ def ended(stamped: list) -> list:
     return [(t, line.split("] ", 1)[1].rsplit(": ", 1)[0]) for t, line in stamped if "jobs done" in line]
 
 
-def replay(stamped: list, jobs: list, recorded: dict, workers: int, cost) -> list:
+def replay(stamped: list, jobs: list, recorded: dict, workers: int, cost, prior: float = 0.0) -> list:
     """[(seconds since start, guessed seconds left)] at each progress line of a recorded run (its
     ``stamped`` lines; its ``jobs``, sweep.Job in plan order; ``recorded``: job name -> the estimate
-    it ran with), the guide asked with ``cost`` instead. The first ``workers`` jobs start at the
+    it ran with), the guide asked with ``cost`` and ``prior`` (sweep.rate's) instead. The first ``workers`` jobs start at the
     run's first line, each next one when a job ends (the pool refills after the line is printed)."""
     from trl_dgpq.collectors import sweep
     order = sorted(jobs, key=lambda j: -recorded[j.name])   # as reproduce.in_order did, stable
@@ -71,7 +71,7 @@ def replay(stamped: list, jobs: list, recorded: dict, workers: int, cost) -> lis
     for t, name in ended(stamped):      # ``started``: the jobs running, each since when
         took.append((by_name[name], t - started.pop(name)))
         running = [(by_name[n], t - s) for n, s in started.items()]
-        out.append((t, sweep.seconds_left(took, running, queue, workers, cost) if queue or running else None))
+        out.append((t, sweep.seconds_left(took, running, queue, workers, cost, prior) if queue or running else None))
         if queue:
             started[queue.pop(0).name] = t
     return out
@@ -92,7 +92,7 @@ def replayed(path: Path, out: Optional[Path] = None, publication: Optional[Path]
     cost = reproduce.job_cost(planned, reproduce.estimate(planned, publication))
     stamped = [tuple(x) for x in record["lines"]]
     then = sum(v["within"] for v in record["guides"])
-    now = judged(replay(stamped, jobs, recorded, workers, cost))
+    now = judged(replay(stamped, jobs, recorded, workers, cost, reproduce.GUIDE_PRIOR_S))
     total = sum(cost(j) for j in jobs)
     return [f"{path}: {len(jobs)} jobs on {workers} workers, recorded {record['meta']['date']}",
             f"time-left guide within 25 % (or 6 s) of the truth: as run, at {then} of {len(record['guides'])} "

@@ -649,6 +649,19 @@ def test_the_time_left_gives_each_job_left_to_the_worker_free_first_at_the_rate_
         sweep.seconds_left(took, [], [d], 0, cost)
 
 
+def test_a_prior_counts_the_estimate_as_seconds_of_jobs_taken_at_one_second_a_unit():
+    """a (cost 10) took 5 s: 0.5 s a unit alone; with a prior of 30 units at 1 s each,
+    (5 + 30) / (10 + 30) = 0.875; d (cost 4) then waits 3.5 s. No rate before a job ends, prior
+    or not."""
+    a, d = sweep.Job("a", 0, [0], "x", {}), sweep.Job("d", 0, [0], "x", {})
+    cost = lambda job: {"a": 10.0, "d": 4.0}[job.experiment]          # noqa: E731
+    assert sweep.rate([(a, 5.0)], cost) == 0.5
+    assert sweep.rate([(a, 5.0)], cost, prior=30.0) == 0.875
+    assert sweep.rate([], cost, prior=30.0) is None
+    assert sweep.seconds_left([(a, 5.0)], [], [d], 1, cost, prior=30.0) == pytest.approx(3.5)
+    assert sweep.seconds_left([(a, 5.0)], [], [d], 1, cost) == pytest.approx(2.0)
+
+
 def test_the_progress_line_says_how_many_running_jobs_are_past_their_estimate(tmp_path, monkeypatch):
     """Three jobs of one unit each on two workers (the backend and the clock stubbed): a ends at 10 s
     while b, begun with it, has run its 10 s, not past; c begun at 10 ends at 30, the rate now
@@ -673,6 +686,15 @@ def test_the_progress_line_says_how_many_running_jobs_are_past_their_estimate(tm
     sweep.execute(tmp_path / "s", jobs, "local", 2, log=lines.append, cost=lambda job: 1.0)
     progress = [line.split("; ")[1].split("]")[0] for line in lines if "jobs done" in line]
     assert progress == ["0.2 min, ~0.2 min left at this rate",
+                        "0.5 min, ~0.1 min left at this rate (1 past its estimate)", "0.5 min"]
+    # a prior of 10 s at 1 s a unit: 20 / 11 s a unit after a, 40 / 12 after c; b, begun at 0, has
+    # run 10 s of its 20 / 11 (past: 2.5 s left, c's 20 / 11 beside it), then 30 s of its 10 / 3 (7.5 left)
+    lines.clear()
+    now[0] = 0.0
+    sweep.create(tmp_path / "s", experiments, jobs, overwrite=True)
+    sweep.execute(tmp_path / "s", jobs, "local", 2, log=lines.append, cost=lambda job: 1.0, prior=10.0)
+    progress = [line.split("; ")[1].split("]")[0] for line in lines if "jobs done" in line]
+    assert progress == ["0.2 min, ~0.0 min left at this rate (1 past its estimate)",
                         "0.5 min, ~0.1 min left at this rate (1 past its estimate)", "0.5 min"]
 
 
@@ -977,11 +999,15 @@ def test_sigterm_outside_a_held_section_stops_at_once_and_a_second_one_kills():
 
 @pytest.mark.parametrize("stop, code, name", [(KeyboardInterrupt(), 130, "SIGINT"), (sweep.Terminated(), 143, "SIGTERM")])
 def test_sweep_and_reproduce_end_a_signal_with_one_line_and_its_code(tmp_path, monkeypatch, capsys, stop, code, name):
+    given = []
+
     def interrupted(*args, **kwargs):
+        given.append(kwargs)
         raise stop
     monkeypatch.setattr(sweep, "execute", interrupted)
     assert reproduce.main(["--scale", "smoke", "--only", "f16", "--out", str(tmp_path / "r"), "--workers", "1"]) == code
     assert capsys.readouterr().err == f"interrupted by {name}: continue with the same command\n"
+    assert given[0]["prior"] == reproduce.GUIDE_PRIOR_S == 240.0        # the guide's trust in the estimate
     assert sweep.run_script("sweep.py", "--resume X", interrupted) == code
     assert capsys.readouterr().err == f"interrupted by {name}: continue with --resume X\n"
 
