@@ -66,8 +66,12 @@ def test_every_study_runs_the_same_protocol_from_its_learners_shortfall_preset()
 
 
 def test_the_plan_runs_each_learner_on_each_reward_with_its_studys_preset():
-    planned = dict(o.plan())      # built now, not at import (a mutation test switches a mutant on after the imports)
-    assert len(planned) == 8 + 2 + 2 and planned == dict(o.REPRODUCE)
+    plan = o.plan()               # built now, not at import (a mutation test switches a mutant on after the imports)
+    planned = {n: settings for n, settings, *_ in plan}
+    assert len(planned) == 8 + 2 + 2 and plan == o.REPRODUCE
+    own = {n: scales[0] for n, _, *scales in plan if scales}          # TD3 past its random steps at the quick scale
+    assert own == {"liq1-td3-shortfall": o.TD3_SCALES, "liq1-td3-impact": o.TD3_SCALES}
+    assert o.TD3_SCALES == {**o.SCALES, "quick": (2, 70)}
     assert planned["liq1-ddpg-impact"] == dict(agent="ddpg", preset="impact-validated")
     assert planned["liq1-td3-shortfall"] == dict(agent="td3", preset="shortfall-validated")
     assert planned["liq1-dgpq-flat"] == dict(agent="dgpq", preset="flat") and planned["liq1-twap"] == dict(agent="twap")
@@ -77,7 +81,7 @@ def test_the_plan_runs_each_learner_on_each_reward_with_its_studys_preset():
 def runs_with(cost) -> dict:
     """Every planned experiment on seeds 50-59 for 5,000 episodes, ``cost(name, seed, episode)``."""
     out = {}
-    for n, settings in o.plan():
+    for n, settings, *_ in o.plan():
         reward = "impact" if n.endswith("-impact") or n.endswith(("-flat", "-steady")) else "shortfall"
         config = {"run": dict(env="liquidation", agent=settings["agent"], preset=settings.get("preset", "shortfall"),
                               seeds=SEEDS), "env": dict(reward=reward), "agent": {}}
@@ -157,7 +161,7 @@ def test_the_section_names_the_lowest_learner_per_reward_and_budget(tmp_path):
                         "of 500 after episode 1,000 over the best (noise-free) | ms per seed-step |")
     assert lines[9] == "|---|---|---|---|---|---|---|---|---|"
     rows = [line for line in lines[10:] if line.startswith("| ")]
-    assert [r.split(" | ")[0][2:] for r in rows] == [n.removeprefix("liq1-") for n, _ in o.plan()
+    assert [r.split(" | ")[0][2:] for r in rows] == [n.removeprefix("liq1-") for n, *_ in o.plan()
                                                      if not n.endswith("ac-optimal")]     # the optimum pairs, no row
     assert ("| ddpg-impact | impact | impact-validated | 1.305 [1.305, 1.306] | 1.805 [1.805, 1.806] | 1.015 "
             "[1.015, 1.016] | 1.515 [1.515, 1.516] | 1.0000 | 1.00 |") in rows

@@ -92,5 +92,42 @@ def quick_sweep_minutes() -> float:
 
 def test_the_quick_scale_is_planned_within_five_minutes_on_two_cores():
     minutes = quick_sweep_minutes()
-    assert minutes <= GOAL_MINUTES, (f"the quick scale's sweep is planned at {minutes:.2f} minutes on 2 cores: with its "
-                                     f"start and report, over 5: cut it (each domain's SCALES['quick'])")
+    assert minutes <= GOAL_MINUTES, (f"the quick scale's sweep is planned at {minutes:.2f} minutes on 2 cores: "
+                                     f"with its start and report, over 5: cut it (each domain's SCALES['quick'])")
+
+
+def first_update(agent: str, settings: dict) -> int:
+    """The env step (per seed) of a learner's first update, by each agent's rule: DQN once past
+    ``learning_starts`` at a step ``train_freq`` divides; TD3 once past ``learning_starts``; DDPG
+    once its replay holds a minibatch (one more with ``start_above_batch``)."""
+    if agent == "dqn":
+        return (settings["learning_starts"] // settings["train_freq"] + 1) * settings["train_freq"]
+    if agent == "td3":
+        return settings["learning_starts"] + 1
+    return settings["batch_size"] + int(settings["start_above_batch"])
+
+
+def test_every_learner_updates_at_the_quick_scale():
+    """The quick scale checks that each experiment runs and its learners learn: every DQN, DDPG and
+    TD3 seed takes env steps past its first update. A budget in env steps is its steps; a budget in
+    episodes, the steps its seeds took in the committed publication over as many episodes (a seed's
+    episodes do not depend on its batch, so the quick run's are the same). Before 2026-11-29's fix,
+    the F-16 model part's DQN (10 episodes of 20 steps, 256 random) and TD3 (20 and 40 episodes of
+    ~16 steps, 1,000 random) never updated."""
+    from trl_dgpq.analysis import published
+    learners = {n: c for n, c in reproduce.experiments("quick").items() if c["run"]["agent"] in ("dqn", "ddpg", "td3")}
+    assert len(learners) == 44
+    short = {}
+    for name, config in learners.items():
+        run = config["run"]
+        first = first_update(run["agent"], config["agent"])
+        if run["env_steps"]:
+            steps = run["env_steps"]
+        else:
+            rows = published.load(reproduce.PUBLICATION, name, columns=()).df
+            rows = rows[rows.seed.isin(run["seeds"]) & (rows.episode <= run["episodes"])]
+            assert sorted(set(rows.seed)) == run["seeds"] and rows.episode.max() == run["episodes"], name
+            steps = int(rows.groupby("seed").steps.sum().min())
+        if steps < first:
+            short[name] = (steps, first)
+    assert short == {}

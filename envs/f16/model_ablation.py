@@ -87,7 +87,7 @@ def settings_of(f: str, who: str, potential: str) -> dict:
     if who == "dqn-tuned":
         return dict(LEARNERS[who], preset=TUNED_DQN[potential.split("-")[0]])
     return dict(LEARNERS[who], preset=FORMULATIONS[f][1])
-SCALES = {"smoke": (1, 2), "quick": (2, 10), "full": (20, 1000), "report": (20, 1000)}
+SCALES = {"smoke": (1, 2), "quick": (2, 14), "full": (20, 1000), "report": (20, 1000)}
 GWH14_SCALES = {"smoke": (1, 2), "quick": (1, 2), "full": (20, 1000), "report": (20, 1000)}
 SCRIPTED = {"nothing": dict(agent="constant"), "pd": dict(agent="pd")}
 

@@ -242,13 +242,14 @@ SUMMARY = ("The Almgren-Chriss closed forms checked by simulation, and DGPQ, DDP
 # "report": the seed report's own length, 11,000 episodes. DDPG gets fewer at quick scale; the
 # seed report's gamma = 0.01 DDPG runs (its Figure 6 sets 0.01 beside 0.99) only at report scale.
 DDPG_SCALES = {"smoke": (1, 2), "quick": (2, 20), "full": (4, 1000), "report": (4, 11_000)}
-SCALES = {"smoke": (1, 4), "quick": (4, 40), "full": (4, 1000), "report": (4, 11_000)}
+SCALES = {"smoke": (1, 4), "quick": (4, 30), "full": (4, 1000), "report": (4, 11_000)}
 # the closed forms are checked by simulation at every scale (their claims are decided at quick too)
 CLOSED_SCALES = {**SCALES, "quick": (4, 100)}
 REPORT_ONLY = {"smoke": (1, 2), "report": (4, 11_000)}
 # TD3 (the paper's 256x256 networks) costs ~8 ms per seed-step against DDPG's ~0.5: 11,000 episodes
 # would take ~6 h on one core, so the report runs it for 3,000 (it had settled by 600 at 18,000 steps).
-TD3_SCALES = {"smoke": (1, 2), "quick": (2, 20), "full": (4, 1000), "report": (4, 3_000)}
+# Quick: past its 1,000 steps of random actions (~16 steps an episode then), so that it updates.
+TD3_SCALES = {"smoke": (1, 2), "quick": (2, 70), "full": (4, 1000), "report": (4, 3_000)}
 REPRODUCE = [
     ("liq-ac-optimal", dict(agent="ac-optimal"), CLOSED_SCALES),
     ("liq-twap", dict(agent="twap"), CLOSED_SCALES),

@@ -63,7 +63,8 @@ MEASURES = {"cost_ratio": "paired ac_cost / U*", "noise_free_cost_ratio": "noise
 SMALL_TD3 = dict(actor_hidden=(24, 48), critic_hidden=(24, 48))    # DDPG's widths (DDPGConfig's defaults)
 STUDY = dict(trials=30, seeds="1000-1004", env_steps=STEPS, episodes=100_000, objective="measure",
              window=STEP_WINDOW, validate=3, validation_seeds="1005-1014", sampler_seed=0)
-SCALES = {"smoke": (1, 4), "quick": (2, 40), "full": (10, EPISODES), "report": (10, EPISODES)}
+SCALES = {"smoke": (1, 4), "quick": (2, 30), "full": (10, EPISODES), "report": (10, EPISODES)}
+TD3_SCALES = {**SCALES, "quick": (2, 70)}   # quick: past TD3's 1,000 steps of random actions, so that it updates
 TITLE = "Liquidation on one reward: DGPQ, DQN, DDPG and TD3 on `shortfall` and on `impact`, tuned alike"
 SUMMARY = ("DGPQ, DQN, DDPG and TD3 (at DDPG's widths), each trained on the model-free shortfall reward and on the "
            "impact reward (which uses the AC model), each with the preset its own 30-trial study chose and "
@@ -104,7 +105,8 @@ def study_command(study: str, who: str, reward: str, out: str = "runs/tune") -> 
 def plan() -> list:
     """[(experiment, settings)]: each learner on each reward with its study's preset, DGPQ's hand-set
     impact presets, and the AC optimum (which pairs every episode) and TWAP."""
-    return ([(name(who, reward), settings_of(who, reward)) for who in LEARNERS for reward in REWARDS]
+    return ([(name(who, reward), settings_of(who, reward), *([TD3_SCALES] if who == "td3" else []))
+             for who in LEARNERS for reward in REWARDS]
             + [(name(f"dgpq-{p}"), dict(agent="dgpq", preset=p)) for p in HAND_SET]
             + [(name("ac-optimal"), dict(agent="ac-optimal")), (name("twap"), dict(agent="twap"))])
 
