@@ -283,14 +283,17 @@ def outcome(job: Job, exitcode: Optional[int] = None, error: Optional[str] = Non
 # ------------------------------------------------------------------ backends
 def job_modules(configs) -> List[str]:
     """This module and the modules a job of each of ``configs`` imports to run: its env's and its
-    agent's (a config without them, as a test's, adds none)."""
+    agent's (a config without them, as a test's, adds none; one naming an env or agent this checkout
+    cannot load adds none either: its job fails on its own, saying why, not the sweep)."""
     from trl_dgpq.agents import agent_class
     from trl_dgpq.envs import env_class
     found = {__name__}
     for config in configs:
         run = config.get("run", {})
-        if "env" in run and "agent" in run:
+        try:
             found |= {env_class(run["env"]).__module__, agent_class(run["agent"], run["env"]).__module__}
+        except (KeyError, ValueError, ImportError):
+            pass
     return sorted(found)
 
 

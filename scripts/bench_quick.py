@@ -60,8 +60,9 @@ def ended(stamped: list) -> list:
 def replay(stamped: list, jobs: list, recorded: dict, workers: int, cost, prior: float = 0.0) -> list:
     """[(seconds since start, guessed seconds left)] at each progress line of a recorded run (its
     ``stamped`` lines; its ``jobs``, sweep.Job in plan order; ``recorded``: job name -> the estimate
-    it ran with), the guide asked with ``cost`` and ``prior`` (sweep.rate's) instead. The first ``workers`` jobs start at the
-    run's first line, each next one when a job ends (the pool refills after the line is printed)."""
+    it ran with), the guide asked with ``cost`` and ``prior`` (sweep.rate's) instead. The first
+    ``workers`` jobs start at the run's first line, each next one when a job ends (the pool refills
+    after the line is printed)."""
     from trl_dgpq.collectors import sweep
     order = sorted(jobs, key=lambda j: -recorded[j.name])   # as reproduce.in_order did, stable
     t0 = stamped[0][0] if stamped else 0.0

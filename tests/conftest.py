@@ -31,10 +31,11 @@ def one_torch_thread():
 
 @pytest.fixture(autouse=True)
 def fewer_bootstraps(request, monkeypatch):
-    """rliable's 2,000 bootstrap replications cost ~0.2 s per interval and ~3 s per performance
-    profile, and a report draws dozens: outside tests/test_stats.py, which checks the intervals
-    at the suite's REPS, tests check what a report says and writes, so 200 do (a test marked
-    ``full_bootstraps`` compares with a committed report's intervals: it draws the suite's REPS)."""
+    """2,000 bootstrap replications cost a few ms per interval (~0.2 s through rliable's own loop,
+    before analysis/stats.py drew them all at once) and a report draws hundreds: outside
+    tests/test_stats.py, which checks the intervals at the suite's REPS, tests check what a report
+    says and writes, so 200 do (a test marked ``full_bootstraps`` compares with a committed report's
+    intervals: it draws the suite's REPS)."""
     if request.module.__name__ != "test_stats" and "full_bootstraps" not in request.keywords:
         from trl_dgpq.analysis import stats
         monkeypatch.setattr(stats, "REPS", 200)

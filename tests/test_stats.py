@@ -132,6 +132,8 @@ def test_an_empty_side_has_no_interval_and_scores_must_be_runs_by_tasks():
         assert all(np.isnan(probability_of_improvement([1.0], [])))
     with pytest.raises(ValueError, match=r"\(runs, tasks\)"):
         profiles({"a": np.ones(3)}, np.array([0.5]), reps=10)
+    with pytest.raises(ValueError, match="one task's runs, got 2 and 1 tasks"):
+        stats.improvement_rows(np.ones((1, 3, 2)), np.ones((1, 3, 1)))
 
 
 def test_per_replication_statistics_are_rliables_bit_for_bit():

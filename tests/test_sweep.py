@@ -933,10 +933,12 @@ def test_workers_come_from_a_forkserver_that_imported_each_jobs_env_and_agent(tm
     configs = [resolve_config(env="square", agent="dgpq", seeds=[0], episodes=1),
                resolve_config(env="liquidation", agent="twap", seeds=[0], episodes=1),
                resolve_config(env="square", agent="random", seeds=[1], episodes=1)]
-    assert sweep.job_modules(configs) == sorted({"trl_dgpq.collectors.sweep", "trl_dgpq.dgpq",
-                                                 "trl_dgpq.agents.random", "trl_dgpq.envs.square.env",
-                                                 "trl_dgpq.envs.liquidation.env", "trl_dgpq.envs.liquidation.baselines"})
+    assert sweep.job_modules(configs) == sorted({
+        "trl_dgpq.collectors.sweep", "trl_dgpq.dgpq", "trl_dgpq.agents.random", "trl_dgpq.envs.square.env",
+        "trl_dgpq.envs.liquidation.env", "trl_dgpq.envs.liquidation.baselines"})
     assert sweep.job_modules([{}, {"run": {"env": "square"}}]) == ["trl_dgpq.collectors.sweep"]
+    unknown = [{"run": {"env": "nowhere", "agent": "dgpq"}}, {"run": {"env": "square", "agent": "nobody"}}]
+    assert sweep.job_modules(unknown) == ["trl_dgpq.collectors.sweep"]       # their jobs fail, saying why
     context = fake_context(monkeypatch)
     jobs = [sweep.Job("e", k, c["run"]["seeds"], str(tmp_path / f"j{k}"), c) for k, c in enumerate(configs)]
     sweep.run_local(jobs, 2, lambda job, out: None)
@@ -999,17 +1001,27 @@ def test_sigterm_outside_a_held_section_stops_at_once_and_a_second_one_kills():
 
 @pytest.mark.parametrize("stop, code, name", [(KeyboardInterrupt(), 130, "SIGINT"), (sweep.Terminated(), 143, "SIGTERM")])
 def test_sweep_and_reproduce_end_a_signal_with_one_line_and_its_code(tmp_path, monkeypatch, capsys, stop, code, name):
-    given = []
+    given, started = [], []
 
     def interrupted(*args, **kwargs):
         given.append(kwargs)
         raise stop
     monkeypatch.setattr(sweep, "execute", interrupted)
+    monkeypatch.setattr(sweep, "start_forkserver", started.append)
     assert reproduce.main(["--scale", "smoke", "--only", "f16", "--out", str(tmp_path / "r"), "--workers", "1"]) == code
     assert capsys.readouterr().err == f"interrupted by {name}: continue with the same command\n"
     assert given[0]["prior"] == reproduce.GUIDE_PRIOR_S == 240.0        # the guide's trust in the estimate
+    # the workers' forkserver started before the plan, with the planned jobs' modules
+    assert started == [sweep.job_modules(reproduce.experiments("smoke", ["f16"]).values())]
+    assert "trl_dgpq.envs.f16.env" in started[0] and "trl_dgpq.agents.dqn" in started[0]
     assert sweep.run_script("sweep.py", "--resume X", interrupted) == code
     assert capsys.readouterr().err == f"interrupted by {name}: continue with --resume X\n"
+
+
+def test_the_guides_prior_is_seconds_only_where_something_is_estimated():
+    """With no experiment estimated (no publication), the guide's costs are seed-steps: no prior."""
+    assert reproduce.guide_prior([("a", None, ""), ("b", 12.0, "measured")]) == 240.0
+    assert reproduce.guide_prior([("a", None, ""), ("b", None, "")]) == 0.0 == reproduce.guide_prior([])
 
 
 def test_the_plan_estimates_each_experiment_from_the_published_one_like_it(tmp_path, capsys):

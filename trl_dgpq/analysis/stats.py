@@ -53,6 +53,8 @@ def improvement_rows(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     ``y`` (reps, m, 1)): Mann-Whitney's U of x over y -- the pairs where x is greater, ties counted
     half (exact in floats, as scipy's rank sums are) -- divided by n m. (rliable returns 0.5 for
     identical runs without scipy; U is n^2 / 2 there, so this gives the same.)"""
+    if x.shape[2] != 1 or y.shape[2] != 1:
+        raise ValueError(f"P(X > Y) is of one task's runs, got {x.shape[2]} and {y.shape[2]} tasks")
     a, b = x[:, :, None, 0], y[:, None, :, 0]
     u = np.count_nonzero(a > b, axis=(1, 2)) + 0.5 * np.count_nonzero(a == b, axis=(1, 2))
     return (u / (x.shape[1] * y.shape[1]))[:, None]

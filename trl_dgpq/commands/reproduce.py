@@ -382,6 +382,12 @@ JOB_START_S = 1.0
 # (its first jobs ran near their estimates). Beside a full-scale run's hours of jobs it fades after
 # the first few.
 GUIDE_PRIOR_S = 240.0
+
+
+def guide_prior(found: list) -> float:
+    """``GUIDE_PRIOR_S`` where some experiment is estimated (``estimate``'s ``found``), else 0: with
+    none, ``job_cost`` counts seed-steps, not seconds, and a prior in seconds would mean nothing."""
+    return GUIDE_PRIOR_S if any(seconds is not None for _, seconds, _ in found) else 0.0
 PUBLICATION = Path(__file__).resolve().parents[2] / "results" / "report"   # the times --plan estimates from
 
 
@@ -821,7 +827,7 @@ def main(argv=None) -> int:
               flush=True)
         t0 = time.perf_counter()
         report = sweep.execute(out, jobs, "local", args.workers, log=lambda line: print(line, flush=True),
-                               cost=cost, prior=GUIDE_PRIOR_S)
+                               cost=cost, prior=guide_prior(found))
         if sweep.exit_code(report, "the same command"):
             return 1
         path = write_report(out, args.scale, time.perf_counter() - t0, args.only)
