@@ -282,3 +282,18 @@ def _run(agent: str, met_at, episodes: int = 30, steps: int = 10, preset: str = 
             for k, m in enumerate(met_at) for e in range(1, episodes + 1)]
     config = {"run": {"env": "gym:CartPole-v1", "agent": agent, "preset": preset, "env_steps": budget}}
     return Run(None, pd.DataFrame(rows), config)
+
+
+def test_the_zoo_preset_is_the_zoos_settings_in_dqns_names_by_hand():
+    """zoo_dqn at test time (the presets table calls it at import): the zoo's CartPole and MountainCar
+    settings as DQNConfig overrides, epsilon over exploration_fraction of the zoo's own budget
+    (0.16 x 50,000; 0.2 x 120,000); Acrobot's equal DQNConfig's defaults (SB3's gradient_steps -1 is
+    train_freq, 4), so its preset overrides nothing but the raw observations."""
+    from trl_dgpq.envs.gym.presets import RAW, zoo_dqn
+    assert zoo_dqn("CartPole-v1") == {"env": RAW, "agent": dict(
+        lr=2.3e-3, batch_size=64, buffer_size=100_000, learning_starts=1_000, target_update_interval=10,
+        train_freq=256, gradient_steps=128, exploration_steps=8_000, eps_end=0.04)}
+    assert zoo_dqn("MountainCar-v0") == {"env": RAW, "agent": dict(
+        lr=4e-3, buffer_size=10_000, learning_starts=1_000, gamma=0.98, target_update_interval=600,
+        train_freq=16, gradient_steps=8, exploration_steps=24_000, eps_end=0.07)}
+    assert zoo_dqn("Acrobot-v1") == {"env": RAW, "agent": {}} and RAW == {"observations": "raw"}
