@@ -279,6 +279,42 @@ def test_gymnasium_adapter_episode_boundaries_and_streams():
     env.close()
 
 
+def test_gymnasium_adapter_says_why_and_reads_its_env_s_step():
+    """The refusals in words; seed 0 by default and PushEnv seeded with the seed given; every info
+    field and a termination read from the step's TensorDict (a stub env's: a short episode seldom
+    succeeds, falls off and ends at once)."""
+    from trl_dgpq.envs.push.gym_adapter import GymPushEnv
+    env = GymPushEnv(max_steps=2)
+    with pytest.raises(RuntimeError, match=r"^call reset\(\) before step\(\), and again after an episode ends$"):
+        env.step(E)
+    obs, _ = env.reset()
+    with pytest.raises(ValueError, match=r"^action must be an integer in \[0, 4\), got 7$"):
+        env.step(7)
+    for seed, adapter in ((0, GymPushEnv(max_steps=2)), (3, GymPushEnv(seed=3, max_steps=2))):
+        ours = PushEnv([seed], max_steps=2)                         # the step's noise is the seed's
+        ours.reset(), adapter.reset()
+        assert np.array_equal(adapter.step(E)[0], step(ours, [E])["observation"][0].numpy())
+        ours.close(), adapter.close()
+    info = TensorDict({"success": torch.tensor([True]), "fell_off": torch.tensor([True]),
+                       "distance": torch.tensor([0.25])}, batch_size=[1])
+    assert GymPushEnv._info(info) == {"success": True, "fell_off": True, "distance": 0.25}
+
+    class Ends:
+        def step(self, td):
+            return TensorDict({"next": TensorDict({
+                "observation": torch.zeros(1, len(obs)), "reward": torch.tensor([[1.5]]),
+                "terminated": torch.tensor([[True]]), "truncated": torch.tensor([[False]]),
+                "success": torch.tensor([True]), "fell_off": torch.tensor([False]), "distance": torch.tensor([0.0])},
+                batch_size=[1])}, batch_size=[1])
+    real, env.env = env.env, Ends()
+    _, reward, terminated, truncated, info = env.step(E)
+    assert (reward, terminated, truncated, info["success"]) == (1.5, True, False, True)
+    with pytest.raises(RuntimeError, match="again after an episode ends"):
+        env.step(E)
+    env.env = real
+    env.close()
+
+
 def test_a_failed_construction_leaves_no_client_connected(monkeypatch):
     from trl_dgpq.envs.push import env as push
 
