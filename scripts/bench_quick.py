@@ -90,10 +90,11 @@ def replayed(path: Path, out: Optional[Path] = None, publication: Optional[Path]
     planned, jobs = sweep.load(out)
     recorded = {j["job"]: j["estimate_s"] for j in record["jobs"]}
     publication = Path(publication or reproduce.PUBLICATION)
-    cost = reproduce.job_cost(planned, reproduce.estimate(planned, publication))
+    found = reproduce.estimate(planned, publication)
+    cost = reproduce.job_cost(planned, found)
     stamped = [tuple(x) for x in record["lines"]]
     then = sum(v["within"] for v in record["guides"])
-    now = judged(replay(stamped, jobs, recorded, workers, cost, reproduce.GUIDE_PRIOR_S))
+    now = judged(replay(stamped, jobs, recorded, workers, cost, reproduce.guide_prior(found)))
     total = sum(cost(j) for j in jobs)
     return [f"{path}: {len(jobs)} jobs on {workers} workers, recorded {record['meta']['date']}",
             f"time-left guide within 25 % (or 6 s) of the truth: as run, at {then} of {len(record['guides'])} "

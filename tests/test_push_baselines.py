@@ -52,7 +52,8 @@ def acts(pushers, blocks, goal=(1.0, 0.0), tol=0.05, align_tol=0.055):
     agent = OraclePusher(OracleConfig(align_tol=align_tol), torch.tensor(goal), tol, torch.tensor([E, N]),
                          torch.tensor([W, S]))
     td = TensorDict({"pusher": torch.tensor([[*p, 0.0] for p in pushers], dtype=torch.float32),
-                     "block": torch.tensor([[*b, 0.0] for b in blocks], dtype=torch.float32)}, batch_size=[len(pushers)])
+                     "block": torch.tensor([[*b, 0.0] for b in blocks], dtype=torch.float32)},
+                    batch_size=[len(pushers)])
     return agent.act(td).tolist()
 
 

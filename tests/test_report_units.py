@@ -252,7 +252,8 @@ def test_a_domain_without_a_threshold_says_so_and_leaves_those_cells_empty(saved
     text = rp.report([Run(Path("runs/l"), df, config)], None, tmp_path)[1]
     assert "Threshold: none defined. At budget:" in text
     assert "| twap flat | 2 | – | – | 1.5 [1.5, 1.5] | 1.5 [1.5, 1.5] | – | 10.00 |" in text
-    assert [line.get_label() for line in saved_figures["compare-liquidation.png"].axes[0].get_lines()] == ["twap flat (2 seeds)"]
+    lines = saved_figures["compare-liquidation.png"].axes[0].get_lines()
+    assert [line.get_label() for line in lines] == ["twap flat (2 seeds)"]
 
 
 def test_runs_of_two_tasks_get_a_table_each_named_by_what_differs_and_the_profiles_under_them(saved_figures,

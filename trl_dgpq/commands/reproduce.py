@@ -372,6 +372,7 @@ def like(config: dict, measured: dict, rows_of) -> tuple:
 # took the many small jobs at the end for longer ones). Measured quiet with 1 s: 90 of 107
 # (docs/reproducing.md). All three before a running job kept a floor (sweep.running_left).
 JOB_START_S = 1.0
+PUBLICATION = Path(__file__).resolve().parents[2] / "results" / "report"   # the times --plan estimates from
 # The time-left guide's rate (sweep.rate) counts the estimate as this many seconds of jobs run at it:
 # the estimate is near the truth over a whole run (x0.96-1.09 measured on the quick scale) but a
 # single job strays 0.6-2.5 times, so the rate of the first few jobs alone misled the guide (gym's DQN,
@@ -388,7 +389,6 @@ def guide_prior(found: list) -> float:
     """``GUIDE_PRIOR_S`` where some experiment is estimated (``estimate``'s ``found``), else 0: with
     none, ``job_cost`` counts seed-steps, not seconds, and a prior in seconds would mean nothing."""
     return GUIDE_PRIOR_S if any(seconds is not None for _, seconds, _ in found) else 0.0
-PUBLICATION = Path(__file__).resolve().parents[2] / "results" / "report"   # the times --plan estimates from
 
 
 def estimate(planned: dict, publication: Path) -> list:
