@@ -269,22 +269,6 @@ def test_the_holdings_figure_draws_each_learners_median_and_iqr_beside_the_optim
     assert len(asked) == 2
 
 
-@pytest.mark.parametrize("agent", ["twap", "ac-optimal"])
-def test_holdings_of_the_schedules_are_their_closed_forms(tmp_path, agent):
-    """A run of TWAP and of the AC optimum (4 trades, 2 seeds): every evaluation episode holds
-    1 - k/4, and the optimum's sinh schedule x_k / X, at each trade; the last is 0."""
-    from trl_dgpq.commands import train
-    out = tmp_path / agent
-    assert train.main(["--env", "liquidation", "--agent", agent, "--trades", "4", "--seeds", "3,5",
-                       "--episodes", "1", "--out", str(out), "--no-progress"]) == 0
-    got = la.holdings(out, episodes=3)
-    assert got.shape == (6, 5)
-    model = ACModel.from_config(LiquidationConfig(trades=4))
-    want = [1, 0.75, 0.5, 0.25, 0] if agent == "twap" else (model.holdings() / model.shares).tolist()
-    for row in got:
-        assert row.tolist() == pytest.approx(want, abs=1e-6)
-
-
 def test_holdings_hold_zero_once_sold_out_and_pad_episodes_that_end_early(tmp_path):
     """DGPQ selling 0, half or all of what is left (3 levels; sigma_tol2 so small that Q̂ is never
     overwritten and every action ties): each seed's holdings fall by its level's share at each trade,
