@@ -1,7 +1,8 @@
 """envs/liquidation/analysis.py by hand on made-up runs, each function called at test time (the
 module's CLAIMS are built at import): train.py's summary, the cost and time figures read back, the
 comparison table line by line, the holdings figure and its data, the claims' words and measures,
-the REPORT.md section; and `holdings` on real runs of the schedules, whose holdings are closed forms."""
+the REPORT.md section; and `holdings` of a DGPQ run selling out early (the schedules' closed forms:
+test_evaluate)."""
 import json
 import lzma
 import math
