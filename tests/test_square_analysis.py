@@ -47,8 +47,8 @@ def test_the_section_by_hand_with_its_figures_stubbed(tmp_path, monkeypatch):
     assert text == (
         "## Square (seed report 4.1; GWH14's first experiment) -- Figures 2-4\n\nLABEL\n\n"
         "| run | seeds x episodes | episode 1 steps: IQM [95 % CI] over seeds | episodes 3+: each seed's median "
-        "steps, IQM [95 % CI] | last 5 episodes: each seed's mean steps, IQM [95 % CI] | capped episodes (share) | kernel fits "
-        "per seed (mean) | ms per seed-step |\n|---|---|---|---|---|---|---|---|\n"
+        "steps, IQM [95 % CI] | last 5 episodes: each seed's mean steps, IQM [95 % CI] | capped episodes (share) "
+        "| kernel fits per seed (mean) | ms per seed-step |\n|---|---|---|---|---|---|---|---|\n"
         "| shaped | 2 x 6 | 100.0 | 17.5 | 24.2 | 17% | 0 | 1.00 |\n"
         "| report-nocap | 1 x 1 | 5000.0 | – | 5000.0 | 0% | 3 | 2.00 |\n\n"
         "- a verdict.\n"
