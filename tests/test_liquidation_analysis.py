@@ -8,6 +8,7 @@ import lzma
 import math
 from pathlib import Path
 
+import matplotlib.colors
 import numpy as np
 import pandas as pd
 import pytest
@@ -134,7 +135,13 @@ def test_the_cost_figure_draws_block_means_a_panel_per_discount_with_the_schedul
                                   if ln.get_label() == label)
     assert look(s90, "optimum") == look(s99, "optimum") != look(s90, "DDPG")
     assert look(s99, "DGPQ") != look(s90, "DDPG")
+    assert tuple(cost.get_size_inches()) == pytest.approx((10.4, 7.4))
+    assert type(cost.get_layout_engine()).__name__ == "ConstrainedLayoutEngine"
+    assert s90.get_shared_x_axes().joined(s90, c90) and s90.get_shared_x_axes().joined(s90, c99)
     legend, = cost.legends
+    handles = legend.legend_handles
+    assert [(h.get_color(), h.get_linestyle()) for h in handles] == [
+        look(s90, "DDPG"), look(s90, "optimum"), look(s99, "DGPQ"), ("k", "--")]
     assert [t.get_text() for t in legend.get_texts()] == [
         "DDPG", "optimum", "DGPQ",
         f"AC optimum: E* = \\${DEFAULT.expected_shortfall():,.0f} (top), U* = \\${DEFAULT.utility():,.0f} (bottom)"]
@@ -142,13 +149,20 @@ def test_the_cost_figure_draws_block_means_a_panel_per_discount_with_the_schedul
 
     time, title = drawn["liquidation_time.png"]
     t90, t99 = time.axes
-    assert [t.get_text() for t in time.legends[0].get_texts()] == ["DDPG", "optimum", "DGPQ"]
-    for ax in (t90, t99):
+    assert tuple(time.get_size_inches()) == pytest.approx((10.4, 4.0))
+    assert type(time.get_layout_engine()).__name__ == "ConstrainedLayoutEngine"
+    tlegend, = time.legends
+    assert [t.get_text() for t in tlegend.get_texts()] == ["DDPG", "optimum", "DGPQ"] and tlegend._ncols == 4
+    assert [(h.get_color(), h.get_linestyle()) for h in tlegend.legend_handles] == [
+        look(s90, "DDPG"), look(s90, "optimum"), look(s99, "DGPQ")]
+    for ax, cost_ax in ((t90, s90), (t99, s99)):
         assert ax.get_yscale() == "log" and ax.get_xlabel() == "episode"
         assert ax.get_ylabel() == "wall ms per episode, per seed"
         for line in ax.get_lines():
             k = {"DGPQ": 1, "DDPG": 2, "optimum": 3}[line.get_label()]
+            assert list(line.get_xdata()) == [2, 4, 6]
             assert list(line.get_ydata()) == pytest.approx([k * 1.5] * 3)       # ms: the mean of k and 2k
+            assert (line.get_color(), line.get_linestyle()) == look(cost_ax, line.get_label())
     assert t90.get_title() == "learners with gamma = 0.9 (schedules in each panel)"
     assert title == "a title"
 
@@ -171,6 +185,29 @@ def test_a_run_shorter_than_a_block_is_one_point_and_few_blocks_get_markers(tmp_
               wall_s=1e-3, steps=60)
     la.figures([opt], ["opt"], tmp_path, block=1)
     assert drawn["liquidation_cost.png"][0].axes[0].get_title() == ""      # no learner: no discount
+
+
+def test_learners_alone_get_no_note_on_schedules_and_every_runs_means_decide_the_axis(tmp_path, drawn, monkeypatch):
+    """Four learners over two discounts (no schedule): panels titled without the note, the legend in
+    4 columns for its 5 entries; the first run's block mean below 0 makes its panel linear though the
+    runs after it are positive; the defaults: blocks of 100, no title; the holdings figure, when drawn,
+    returned last, with the title."""
+    asked = []
+    monkeypatch.setattr(la, "holdings_figure", lambda runs, labels, out, title: asked.append(title) or out / "h.png")
+    runs = [run("dgpq", episodes=200, gamma=g, path=tmp_path / f"r{i}", wall_s=1e-3, steps=60, ac_cost=1.0,
+                implementation_shortfall=(lambda s, e: -1.0) if i == 0 else 5.0)
+            for i, g in enumerate((0.9, 0.99, 0.9, 0.99))]
+    assert la.figures(runs, list("abcd"), tmp_path)[-1] == tmp_path / "h.png" and asked == [""]
+    cost, title = drawn["liquidation_cost.png"]
+    assert title == ""
+    s90, s99, c90, c99 = cost.axes
+    assert s90.get_title() == "learners with gamma = 0.9" and s99.get_title() == "learners with gamma = 0.99"
+    assert s90.get_yscale() == "linear" and s99.get_yscale() == "log" and c90.get_yscale() == "log"
+    line = next(ln for ln in s90.get_lines() if ln.get_label() == "a")
+    assert list(line.get_xdata()) == [100, 200]                             # blocks of 100
+    assert cost.legends[0]._ncols == 4 and len(cost.legends[0].get_texts()) == 5
+    la.figures(runs, list("abcd"), tmp_path, title="T")
+    assert asked[-1] == "T"
 
 
 # ------------------------------------------------------------------ the comparison table
@@ -233,11 +270,14 @@ def test_the_holdings_figure_draws_each_learners_median_and_iqr_beside_the_optim
     monkeypatch.setattr(evaluate, "job_folders", lambda path: [path])
     monkeypatch.setattr(la, "holdings", lambda path, episodes: asked.append((path, episodes)) or
                         drawn[path.name])
+    twap = run("twap", ac_cost=1.0, implementation_shortfall=1.0, wall_s=1.0, path="twap")
+    runs, labels = runs + [twap], labels + ["twap"]
     runs[0].path, runs[1].path, runs[2].path = Path("dgpq"), Path("ddpg"), Path("opt")
+    runs[1].config["env"]["trades"] = 7                                   # the market is the first run's
     out = tmp_path / "pub" / "liquidation"
     out.mkdir(parents=True)
     assert la.holdings_figure(runs, labels, out, episodes=5, title="t") == out / "holdings.png"
-    assert asked == [(Path("dgpq"), 5), (Path("ddpg"), 5)]                     # the schedule is not a learner
+    assert asked == [(Path("dgpq"), 5), (Path("ddpg"), 5)]                     # the schedules are not learners
     with lzma.open(out / "holdings.json.xz", "rt") as f:
         assert json.load(f) == {k: v.tolist() for k, v in drawn.items()}
     fig = saved_figures["holdings.png"]
@@ -254,6 +294,14 @@ def test_the_holdings_figure_draws_each_learners_median_and_iqr_beside_the_optim
     assert list(lines["Almgren-Chriss optimum"].get_ydata()) == pytest.approx(
         (DEFAULT.holdings() / DEFAULT.shares).tolist())
     assert list(lines["TWAP"].get_ydata()) == pytest.approx(1 - k / N)
+    assert list(lines["TWAP"].get_xdata()) == list(k) and list(lines["Almgren-Chriss optimum"].get_xdata()) == list(k)
+    assert (lines["TWAP"].get_linestyle(), lines["TWAP"].get_color()) == (":", "0.4")
+    assert (lines["Almgren-Chriss optimum"].get_linestyle(), lines["Almgren-Chriss optimum"].get_color()) == ("--", "k")
+    assert [ln.get_linewidth() for ln in lines.values()] == [1.4, 1.4, 1.2, 1.2]
+    for band, line in zip(ax.collections, list(lines.values())[:2]):
+        assert list(band.get_facecolor()[0][:3]) == pytest.approx(matplotlib.colors.to_rgb(line.get_color()))
+    assert tuple(fig.get_size_inches()) == pytest.approx((6.4, 4.2))
+    assert ax.title.get_fontsize() == 9 and ax.get_legend().get_texts()[0].get_fontsize() == 7
     assert ax.get_xlabel() == "trade k" and ax.get_ylabel() == "holdings x_k / X (median; band: IQR)"
     assert ax.get_title() == "what each learner sells, exploration off" and ax.get_legend() is not None
 
@@ -268,6 +316,9 @@ def test_the_holdings_figure_draws_each_learners_median_and_iqr_beside_the_optim
     assert [ln.get_label() for ln in saved_figures["holdings.png"].axes[0].get_lines()][:2] == [
         "dgpq (5 evaluation episodes)", "ddpg (5 evaluation episodes)"]
     assert len(asked) == 2
+    monkeypatch.setattr(evaluate, "job_folders", lambda path: [path])
+    la.holdings_figure(runs, labels, out)
+    assert asked[-1] == (Path("ddpg"), 10) and saved_figures["holdings.png"]._suptitle is None   # the defaults
 
 
 def test_holdings_hold_zero_once_sold_out_and_pad_episodes_that_end_early(tmp_path):

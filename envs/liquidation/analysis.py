@@ -84,15 +84,15 @@ def figures(runs, labels, out: Path, block: int = 100, last=None, title: str = "
     model = ACModel.from_config(from_dict(LiquidationConfig, runs[0].config["env"]))
     gammas = sorted({r.gamma for r in runs if r.gamma is not None}) or [None]
     schedules = any(r.gamma is None for r in runs)
-    panels = [("implementation_shortfall", "mean implementation shortfall", model.expected_shortfall(), "E*"),
-              ("ac_cost", "mean ac_cost = shortfall + risk term", model.utility(), "U*")]
+    panels = [("implementation_shortfall", "mean implementation shortfall", model.expected_shortfall()),
+              ("ac_cost", "mean ac_cost = shortfall + risk term", model.utility())]
     fig, axes = plt.subplots(2, len(gammas), figsize=(5.2 * len(gammas), 7.4), squeeze=False, sharex=True,
                              layout="constrained")
     tfig, taxes = plt.subplots(1, len(gammas), figsize=(5.2 * len(gammas), 4.0), squeeze=False,
                                layout="constrained")
     handles = {}
     for j, gamma in enumerate(gammas):
-        plotted = [[ref] for _, _, ref, _ in panels]
+        plotted = [[ref] for _, _, ref in panels]
         for k, (run, label) in enumerate(zip(runs, labels)):
             if run.gamma not in (None, gamma):
                 continue
@@ -106,7 +106,7 @@ def figures(runs, labels, out: Path, block: int = 100, last=None, title: str = "
                 handles[label], = axes[row, j].plot(x, y, label=label, **style)
                 plotted[row] += list(y)
             taxes[0, j].plot(x, df["wall_s"].groupby(blk).mean() * 1e3, label=label, **style)
-        for row, (col, ylabel, ref, name) in enumerate(panels):
+        for row, (col, ylabel, ref) in enumerate(panels):
             ax = axes[row, j]
             optimum = ax.axhline(ref, color="k", ls="--", lw=1)
             cost_axis(ax, plotted[row])
