@@ -92,8 +92,15 @@ def test_the_figure_draws_the_final_distance_and_the_success_rate_per_episode(tm
     assert sax.get_ylim() == (-0.03, 1.03)
     assert ax.get_legend().get_title().get_text() == "median, shaded: inter-quartile range"
     assert ax.get_title() == ("block pushing: the block's final distance to the goal, and success, per episode")
+    # the looks: a square figure, distance above success at 3 : 2 on one x axis
+    assert tuple(fig.get_size_inches()) == (6.4, 6.4) and ax.get_shared_x_axes().joined(ax, sax)
+    assert tuple(ax.get_subplotspec().get_gridspec().get_height_ratios()) == (3, 2)
+    assert rate.get_linewidth() == dist.get_linewidth() == 1.2 and ax.title.get_fontsize() == 9
+    assert {t.get_fontsize() for t in [*ax.get_legend().get_texts(), ax.get_legend().get_title()]} == {8}
+    assert {g.get_alpha() for a in (ax, sax) for g in a.yaxis.get_gridlines()} == {0.3}
     assert pa.figures([a], ["DGPQ"], tmp_path, last=1) and (tmp_path / "push.md").read_text() == pa.table(
         [a], ["DGPQ"], 1)
+    assert drawn["push.png"][1] == ""                                     # no title by default
     # a learner with a checkpoint gets its animation; the oracle never, the first learner only
     animated = []
     monkeypatch.setattr(evaluate, "job_folders", lambda path: [path])
@@ -130,11 +137,11 @@ def test_the_section_by_hand_with_its_figures_stubbed(tmp_path, monkeypatch):
         (out / "push.md").write_text("TABLE\n")
     monkeypatch.setattr(pa, "figures", figures)
     runs = {"push-rbf": 1, "push-manifold": 2, "push-oracle": 3}
-    judged = [SimpleNamespace(bullet=lambda: "- a claim.")]
+    judged = [SimpleNamespace(bullet=lambda: "- a claim."), SimpleNamespace(bullet=lambda: "- another.")]
     text = pa.reproduce_section(runs, tmp_path, "LABEL", "TITLE", judged)
     assert called == [([1, 2, 3], ["DGPQ RBF", "DGPQ manifold", "oracle"], tmp_path / "push", 20, "TITLE")]
-    assert text == ("## Block pushing (seed report 4.3) -- Figure 5\n\nLABEL\n\nTABLE\n\n- a claim. GWH14 had no robot "
-                    "experiment.\n\n![push](push/push.png)\n")
+    assert text == ("## Block pushing (seed report 4.3) -- Figure 5\n\nLABEL\n\nTABLE\n\n- a claim.\n- another. GWH14 had "
+                    "no robot experiment.\n\n![push](push/push.png)\n")
     (tmp_path / "push" / "push.gif").write_bytes(b"")
     assert pa.reproduce_section(runs, tmp_path, "L", "T", judged).endswith(
         "![push](push/push.png) ![an evaluation episode](push/push.gif)\n")
@@ -207,6 +214,7 @@ def test_an_episodes_frames_are_the_start_and_one_per_step_of_its_row(monkeypatc
     assert pa.episode_frames(env, "POLICY", 1, 20, 10) == [1, 2, 3, 4]
     assert seen == [(env, 1, 20, 10)] * 4
     assert pa.episode_frames(env, "POLICY", 1) == [5, 6, 7, 8] and seen[-1] == (env, 1, *pa.FRAME)
+    assert pa.episode_frames(env, "POLICY") == [9] and seen[-1] == (env, 0, *pa.FRAME)   # row 0 by default
 
 
 def test_the_animation_stacks_the_learner_above_the_oracle_with_the_goal_ringed(tmp_path, monkeypatch):
@@ -217,7 +225,7 @@ def test_the_animation_stacks_the_learner_above_the_oracle_with_the_goal_ringed(
 
     import trl_dgpq.agents as agents
     import trl_dgpq.collectors.evaluate as evaluate
-    W, H = 64, 40
+    W, H = 64, 240
     goal, radius = (0.3, 0.1), 0.05
     evaluated = []
     env = SimpleNamespace(info="INFO", for_evaluation=lambda: evaluated.append(1),
@@ -246,22 +254,22 @@ def test_the_animation_stacks_the_learner_above_the_oracle_with_the_goal_ringed(
         return [np.tile(np.array([0, 0, 200], np.uint8), (H, W, 1))] * 2
     monkeypatch.setattr(pa, "episode_frames", frames)
     monkeypatch.setattr(pa, "camera", lambda w, h: ("V", "P") if (w, h) == (W, H) else None)
-    # the goal's centre at (40, 20), its edge 6 pixels east and 4 south: the ring's box 34-46 x 16-24
-    where = {(0.3, 0.1): (40.0, 20.0), (0.35, 0.1): (46.0, 20.0), (0.3, 0.15): (40.0, 24.0)}
+    # the goal's centre at (40, 120), its edge 6 pixels east and 4 south: the ring's box 34-46 x 116-124
+    where = {(0.3, 0.1): (40.0, 120.0), (0.35, 0.1): (46.0, 120.0), (0.3, 0.15): (40.0, 124.0)}
     monkeypatch.setattr(pa, "pixel", lambda xyz, v, p, w, h: where[(round(xyz[0], 9), round(xyz[1], 9))]
                         if (xyz[2], v, p, w, h) == (0.625, "V", "P", W, H) else None)
     texts, rings = [], []
     text, ellipse = ImageDraw.ImageDraw.text, ImageDraw.ImageDraw.ellipse
-    monkeypatch.setattr(ImageDraw.ImageDraw, "text", lambda self, xy, s, **kw: texts.append((xy, s, kw["fill"]))
-                        or text(self, xy, s, **kw))
+    monkeypatch.setattr(ImageDraw.ImageDraw, "text", lambda self, xy, s, **kw: texts.append(
+        (xy, s, kw["fill"], kw["font"].size)) or text(self, xy, s, **kw))
     monkeypatch.setattr(ImageDraw.ImageDraw, "ellipse", lambda self, box, **kw: rings.append((box, kw))
                         or ellipse(self, box, **kw))
     path = pa.animation(tmp_path / "run", tmp_path, W, H)
     assert path == tmp_path / "push.gif" and made == [({}, "INFO", [5, 6])]
-    assert [s for _, s, _ in texts] == ["dgpq: step 0", "oracle: step 0", "dgpq: step 1", "oracle: step 1 (done)",
+    assert [s for _, s, _, _ in texts] == ["dgpq: step 0", "oracle: step 0", "dgpq: step 1", "oracle: step 1 (done)",
                                         "dgpq: step 2 (done)", "oracle: step 1 (done)"]
-    assert {(xy, fill) for xy, _, fill in texts} == {((6, 4), (0, 0, 0))}
-    assert rings == [((34.0, 16.0, 46.0, 24.0), dict(outline=(220, 0, 0), width=2))] * 6
+    assert {(xy, fill, size) for xy, _, fill, size in texts} == {((6, 4), (0, 0, 0), 16)}   # 240 // 15 pixels
+    assert rings == [((34.0, 116.0, 46.0, 124.0), dict(outline=(220, 0, 0), width=2))] * 6
     gif = Image.open(path)
     assert gif.size == (W, 2 * H) and gif.n_frames == 3 and gif.info["loop"] == 0
     for k, grey in enumerate((50, 100, 150)):
@@ -270,5 +278,6 @@ def test_the_animation_stacks_the_learner_above_the_oracle_with_the_goal_ringed(
         rgb = np.asarray(gif.convert("RGB")).astype(int)
         assert (np.abs(rgb[H - 5, 5] - grey) <= 4).all()                         # the learner on top
         assert (np.abs(rgb[2 * H - 5, 5] - [0, 0, 200]) <= 4).all()              # the oracle below
-        assert rgb[20, 34, 0] > 150 and rgb[20, 34, 1] < 60                       # the ring's west edge, red
+        for row in (120, H + 120):                                               # the ring's west edge, red
+            assert rgb[row, 34, 0] > 150 and rgb[row, 34, 1] < 60 and rgb[row, 38, 0] < 160
 
