@@ -15,6 +15,8 @@ import pandas as pd
 import pytest
 import torch
 
+from tests.fake_process import FakeProcess
+from tests.fake_process import fake_context as fake_processes
 from trl_dgpq.collectors import runner, sweep
 from trl_dgpq.collectors.experiment import TIMING_COLUMNS, resolve_config
 from trl_dgpq.commands import reproduce
@@ -885,41 +887,10 @@ def test_reproduce_reports_the_domains_whose_experiments_all_finished(tmp_path, 
 
 
 # ------------------------------------------------------------------ signals outside a run (issue 52)
-class FakeProcess:
-    """A worker process that does nothing; ``on_start``/``on_join`` run inside start() and join()
-    (where a signal may arrive)."""
-    made = []
-
-    def __init__(self, target=None, args=(), name="", on_start=None, on_join=None):
-        self.name, self.on_start, self.on_join = name, on_start, on_join
-        self.sentinel, self.exitcode, self.terminated = object(), None, False
-        FakeProcess.made.append(self)
-
-    def start(self):
-        if self.on_start:
-            self.on_start()
-
-    def join(self):
-        if self.on_join:
-            self.on_join()
-        self.exitcode = -signal.SIGTERM if self.terminated else 0
-
-    def terminate(self):
-        self.terminated = True
-
-
 def fake_context(monkeypatch, **hooks):
-    FakeProcess.made = []
-
-    class Context:
-        def Process(self, **kwargs):
-            return FakeProcess(**kwargs, **hooks)
-
-        def set_forkserver_preload(self, modules):
-            Context.preload = list(modules)
-    monkeypatch.setattr(sweep.mp, "get_context", lambda method: Context())
+    context = fake_processes(monkeypatch, sweep.mp, **hooks)
     monkeypatch.setattr(sweep, "wait", lambda sentinels: sentinels[:1])
-    return Context
+    return context
 
 
 def sigterm_self():
@@ -961,7 +932,7 @@ def test_a_sigterm_while_a_worker_starts_still_stops_that_worker(tmp_path, monke
 def once(action):
     """``action`` the first time only (a second SIGTERM would end the test's process: by design)."""
     calls = []
-    return lambda: None if calls else (calls.append(1), action())
+    return lambda *_: None if calls else (calls.append(1), action())
 
 
 def test_a_sigterm_while_a_worker_is_reaped_still_records_it(tmp_path, monkeypatch):

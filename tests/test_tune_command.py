@@ -7,6 +7,7 @@ from types import SimpleNamespace
 import pytest
 
 import trl_dgpq.study
+from tests.fake_process import FakeProcess, fake_context
 from trl_dgpq.collectors import runner
 from trl_dgpq.commands import tune
 from trl_dgpq.presets import default_preset
@@ -218,42 +219,8 @@ def test_one_worker_fills_the_study_here_and_returns_the_signal_that_stopped_it(
     assert tune.run_workers("S", 4, 1) == signal.SIGTERM
 
 
-class Proc:
-    """A worker process that ends with ``code``; starts and joins in one log for all of them."""
-    made, log = [], []
-
-    def __init__(self, code, target, args):
-        self.exitcode, self.target, self.args, self.pid, self.code = None, target, args, None, code
-        Proc.made.append(self)
-
-    def start(self):
-        self.pid = 4242 + Proc.made.index(self)
-        Proc.log.append(("start", self.pid))
-
-    def join(self):
-        Proc.log.append(("join", self.pid))
-        self.exitcode = self.code
-
-    def is_alive(self):
-        return self.exitcode is None
-
-
 def workers(monkeypatch, codes, during_join=None):
-    Proc.made, Proc.log = [], []
-    codes = list(codes)
-
-    class Context:
-        def Process(self, target, args):
-            proc = Proc(codes.pop(0), target, args)
-            if during_join:
-                real = proc.join
-
-                def join():
-                    during_join(proc)
-                    real()
-                proc.join = join
-            return proc
-    monkeypatch.setattr(tune.multiprocessing, "get_context", lambda method: Context() if method == "spawn" else None)
+    fake_context(monkeypatch, tune.multiprocessing, "spawn", codes, on_join=during_join)
     return SimpleNamespace(out="dir", url="sqlite:///dir/study.db", request={"given": {}})
 
 
@@ -261,9 +228,9 @@ def test_k_workers_are_spawned_on_the_same_study_and_their_ends_read(monkeypatch
     from trl_dgpq.study import worker
     study = workers(monkeypatch, [0, 0, 0])
     assert tune.run_workers(study, 9, 3) == 0
-    assert Proc.log == [("start", 4242), ("start", 4243), ("start", 4244), ("join", 4242), ("join", 4243),
+    assert FakeProcess.log == [("start", 4242), ("start", 4243), ("start", 4244), ("join", 4242), ("join", 4243),
                         ("join", 4244)]                                   # all started, then each waited for
-    assert all(p.target is worker and p.args == ("dir", "sqlite:///dir/study.db", {"given": {}}, 9) for p in Proc.made)
+    assert all(p.target is worker and p.args == ("dir", "sqlite:///dir/study.db", {"given": {}}, 9) for p in FakeProcess.made)
     study = workers(monkeypatch, [0, 128 + signal.SIGINT, 128 + signal.SIGTERM])
     assert tune.run_workers(study, 9, 3) == signal.SIGINT                      # the first stopped one's
     study = workers(monkeypatch, [0, 3, 1])
@@ -281,7 +248,7 @@ def test_a_signal_to_tune_is_sent_on_to_each_live_worker_once(monkeypatch):
     monkeypatch.setattr(tune.os, "kill", lambda pid, signum: killed.append((pid, signum)))
 
     def signal_arrives(proc):
-        if proc is Proc.made[1]:
+        if proc is FakeProcess.made[1]:
             signal.getsignal(signal.SIGTERM)(signal.SIGTERM, None)
             signal.getsignal(signal.SIGINT)(signal.SIGINT, None)     # a second one: not sent again
     before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
