@@ -1,0 +1,195 @@
+"""collectors/sweep.py's small parts by hand, without a worker process: a job's name and planned
+seed-steps, the time left of a backend that does not say when jobs start, a running job's floor,
+the clock, the makespan of a schedule, a job's outcome from its status, the exit code's lines,
+the jobs described, the seed slices of a plan, a folder's writability, a sweep file's refusals,
+and an experiment's rows merged from its jobs. (Real sweeps, signals and the time-left guide as a
+schedule: test_sweep.)"""
+import signal
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from trl_dgpq.collectors import runner, sweep
+from trl_dgpq.collectors.experiment import resolve_config
+
+
+def job(seeds, experiment="e", index=0, folder="f", **run):
+    config = {"run": {"env": "square", "episodes": 10, "seeds": seeds, **run}, "env": {"max_steps": 50}}
+    return sweep.Job(experiment, index, seeds, folder, config)
+
+
+def test_a_jobs_name_spans_consecutive_seeds_and_lists_the_others():
+    assert job([3, 4, 5]).name == "e job 0 (seeds 3-5)"
+    assert job([3, 5], index=2).name == "e job 2 (seeds 3,5)"
+    assert job([7]).name == "e job 0 (seeds 7)"
+    assert job([5, 4]).name == "e job 0 (seeds 5,4)"
+
+
+def test_planned_seed_steps_are_seeds_times_the_smaller_of_the_cap_and_the_budget():
+    assert sweep.planned_seed_steps(job([0, 1, 2])) == 3 * 10 * 50
+    assert sweep.planned_seed_steps(job([0, 1], env_steps=120)) == 2 * 120
+    assert sweep.planned_seed_steps(job([0, 1], env_steps=900)) == 2 * 500        # the cap is smaller
+    gym = sweep.Job("g", 0, [0], "f", {"run": {"env": "gym:CartPole-v1", "episodes": 4, "seeds": [0]},
+                                       "env": {"max_steps": 0}})
+    assert sweep.planned_seed_steps(gym) == 4 * 500                                  # CartPole's registered cap
+
+
+def test_minutes_left_at_the_done_jobs_rate_with_half_of_each_running_one_done():
+    """Done jobs of cost 10 and 30 took 8 minutes; left: 20 (running) and 40. Half the running one
+    counts as done: 8 x (60 - 10) / (40 + 10) = 8."""
+    cost = {"a": 10, "b": 30, "c": 20, "d": 40}.get
+    assert sweep.minutes_left(8.0, ["a", "b"], ["c", "d"], cost, running=1) == pytest.approx(8.0)
+    assert sweep.minutes_left(8.0, ["a", "b"], ["c", "d"], cost) == pytest.approx(8.0 * 60 / 40)
+    assert sweep.minutes_left(8.0, [], ["c"], cost) == 0.0                          # nothing done: no rate
+    assert sweep.minutes_left(8.0, [], ["c", "d"], cost, running=1) == pytest.approx(8.0 * 50 / 10)
+    assert sweep.minutes_left(3.0, [job([0])], [job([0, 1])]) == pytest.approx(6.0)   # planned seed-steps
+
+
+def test_a_running_jobs_time_left_is_its_estimate_less_what_it_ran_at_least_a_quarter_of_that():
+    assert sweep.running_left(100.0, 30.0) == 70.0
+    assert sweep.running_left(100.0, 80.0) == 20.0                                    # 0.25 x 80 = 20: equal
+    assert sweep.running_left(100.0, 90.0) == 22.5
+    assert sweep.running_left(100.0, 200.0) == 50.0
+
+
+@pytest.mark.parametrize("minutes, text", [(0.44, "0.4 min"), (9.96, "10.0 min"), (10.0, "10 min"),
+                                           (119.4, "119 min"), (120.0, "2.0 h"), (150.0, "2.5 h")])
+def test_the_clock(minutes, text):
+    assert sweep.clock(minutes) == text
+
+
+def test_the_makespan_gives_the_longest_jobs_first_to_the_worker_free_first():
+    """5, 4, 3, 3, 3 on two workers, longest first: 5 | 4, a 3 to the 4 (7), a 3 to the 5 (8), a 3
+    to the 7 (10): 10. (In the order given, 3 | 5, 3 to the 3 (6), 4 to the 5 (9), 3 to the 6: 9 | 9.)"""
+    assert sweep.makespan([3, 5, 3, 4, 3], 2) == 10.0
+    assert sweep.makespan([3, 5, 3, 4, 3], 1) == 18.0
+    assert sweep.makespan([3, 5], 4) == 5.0
+    assert sweep.makespan([], 3) == 0.0
+    with pytest.raises(ValueError, match="^workers must be >= 1, got 0$"):
+        sweep.makespan([1.0], 0)
+
+
+def test_a_jobs_outcome_from_its_status_and_how_its_process_ended(tmp_path):
+    j = job([0], folder=str(tmp_path / "j"))
+    (tmp_path / "j").mkdir()
+    status = tmp_path / "j" / runner.STATUS
+
+    def write(state, reason=None):
+        status.write_text(pd.Series({"status": state, "reason": reason}).to_json())
+    assert sweep.outcome(j, 1) == dict(status="failed", reason="exit code 1, status None")
+    assert sweep.outcome(j, None, "it broke") == dict(status="failed", reason="it broke")
+    assert sweep.outcome(j, -signal.SIGKILL) == dict(status="killed", reason="killed by SIGKILL")
+    write("finished")
+    assert sweep.outcome(j, -signal.SIGKILL) == dict(status="finished")
+    write("failed", "out of memory")
+    assert sweep.outcome(j, -signal.SIGTERM) == dict(status="failed", reason="out of memory")
+    write("interrupted", "SIGTERM")
+    assert sweep.outcome(j, 143) == dict(status="interrupted", reason="SIGTERM")
+    assert sweep.outcome(j, -signal.SIGTERM) == dict(status="killed", reason="killed by SIGTERM")
+    write("running")
+    assert sweep.outcome(j, 0) == dict(status="failed", reason="exit code 0, status 'running'")
+
+
+def test_the_exit_code_lists_what_did_not_finish_and_how_to_rerun_it(capsys):
+    report = {"a": dict(status="finished"), "b": dict(status="killed", reason="killed by SIGKILL"),
+              "c": dict(status="interrupted")}
+    assert sweep.exit_code(report, "sweep.py --resume x") == 1
+    assert capsys.readouterr().err == ("b: killed: killed by SIGKILL\nc: interrupted: None\n2 of 3 jobs did not "
+                                       "finish; the others kept their rows. Rerun them with: sweep.py --resume x\n")
+    assert sweep.exit_code({"a": dict(status="finished")}, "r") == 0 and capsys.readouterr().err == ""
+
+
+def test_the_jobs_described_per_experiment_in_the_plans_order():
+    a = resolve_config(env="square", agent="dgpq", seeds=[0, 1, 2], episodes=5)
+    b = resolve_config(env="corridor", agent="random", seeds=[4], episodes=2)
+    jobs = sweep.plan({"b": b, "a": a}, "out", 2)
+    text = sweep.describe_jobs(jobs)
+    first, second = text.split("; ")
+    assert first.startswith("b: ") and first.endswith(", 1 seed in 1 job")
+    assert second.startswith("a: ") and second.endswith(", 3 seeds in 2 jobs")
+
+
+def test_a_plan_slices_each_experiments_seeds_and_gives_each_job_its_own_folder_and_one_thread():
+    a = resolve_config(env="square", agent="dgpq", seeds=[5, 6, 7, 8, 9], episodes=5)
+    jobs = sweep.plan({"a": a}, "out", 2)
+    assert [(j.index, j.seeds, j.folder) for j in jobs] == [
+        (0, [5, 6], str(Path("out/a/jobs/j000"))), (1, [7, 8], str(Path("out/a/jobs/j001"))),
+        (2, [9], str(Path("out/a/jobs/j002")))]
+    assert all(j.config["run"]["seeds"] == j.seeds and j.config["run"]["threads"] == 1 for j in jobs)
+    assert a["run"]["seeds"] == [5, 6, 7, 8, 9] and jobs[0].config["env"] == a["env"]      # the config untouched
+    assert [j.seeds for j in sweep.plan({"a": a}, "out", None)] == [[5, 6, 7, 8, 9]]
+    assert [j.seeds for j in sweep.plan({"a": a}, "out", 2, groups={"a": 3})] == [[5, 6], [7, 8], [9]]
+    assert [j.seeds for j in sweep.plan({"a": a}, "out", None, groups={"a": 5})] == [[5], [6], [7], [8], [9]]
+    assert [j.seeds for j in sweep.plan({"a": a}, "out", None, groups={"b": 2})] == [[5, 6, 7, 8, 9]]
+    for bad in (0, 6):
+        with pytest.raises(sweep.SweepError, match=rf"^a: {bad} jobs for 5 seeds$"):
+            sweep.plan({"a": a}, "out", None, groups={"a": bad})
+    with pytest.raises(sweep.SweepError, match="^seeds_per_job must be >= 1, got 0$"):
+        sweep.plan({"a": a}, "out", 0)
+
+
+def test_a_folder_is_writable_here_or_says_why_not(tmp_path):
+    assert sweep.writable_here(str(tmp_path / "new" / "out")) is None
+    assert (tmp_path / "new" / "out").is_dir() and list((tmp_path / "new" / "out").iterdir()) == []  # no probe left
+    (tmp_path / "file").write_text("")
+    why = sweep.writable_here(str(tmp_path / "file" / "out"))
+    assert why.startswith("node ") and why.endswith(f"cannot write {tmp_path / 'file' / 'out'}: Not a directory")
+
+
+def test_a_sweep_file_is_refused_in_one_line_naming_the_experiment(tmp_path):
+    def refused(text, words):
+        path = tmp_path / "s.toml"
+        path.write_text(text)
+        with pytest.raises(sweep.SweepError) as err:
+            sweep.read_sweep_file(path)
+        assert str(err.value) == words.format(path=path)
+    with pytest.raises(sweep.SweepError, match=r"^cannot read .*nowhere\.toml: No such file or directory$"):
+        sweep.read_sweep_file(tmp_path / "nowhere.toml")
+    path = tmp_path / "s.toml"
+    path.write_text("[[experiment]\n")
+    with pytest.raises(sweep.SweepError, match=r"^.*s\.toml: not valid TOML: .*line 1"):   # tomllib's own words
+        sweep.read_sweep_file(path)
+    refused("[other]\n[[experiment]]\nname = 'a'\n", "{path}: unknown tables ['other'] (use [defaults] and "
+                                                     "[[experiment]])")
+    refused("[defaults]\nepisodes = 2\n", "{path}: no [[experiment]] entries")
+    refused("experiment = 3\n", "{path}: no [[experiment]] entries")
+    refused("[[experiment]]\nname = 'a'\nlr = 0.1\n", "{path}: experiment 1 ('a'): unknown keys ['lr']; settings go "
+                                                      "under [experiment.set]")
+    refused("[[experiment]]\nenv = 'square'\n", "{path}: experiment 1: needs a name that can be a folder name, got "
+                                                "None")
+    for name in ("a/b", ".hidden", ""):
+        refused(f"[[experiment]]\nname = '{name}'\n", "{path}: experiment 1" + (f" ({name!r})" if name else "")
+                + f": needs a name that can be a folder name, got {name!r}")
+    refused("[[experiment]]\nname = 'a'\n[[experiment]]\nname = 'a'\n", "{path}: experiment 2 ('a'): the name 'a' "
+                                                                       "is used twice")
+    path.write_text("[[experiment]]\nname = 'a'\nenv = 'square'\n[experiment.set]\nnoise_var = -1.0\n")
+    with pytest.raises(sweep.SweepError, match=r"^.*s\.toml: experiment 1 \('a'\): .*noise_var"):
+        sweep.read_sweep_file(path)
+
+
+def test_a_sweep_file_with_defaults_under_every_experiment(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text("[defaults]\nepisodes = 3\nenv = 'square'\n[defaults.set]\nnoise_var = 0.2\nsigma_tol2 = 0.5\n"
+                    "[[experiment]]\nname = 'a'\nseeds = '0-2'\n[experiment.set]\nnoise_var = 0.3\n"
+                    "[[experiment]]\nname = 'b'\nepisodes = 4\nseeds = '5'\n")
+    got = sweep.read_sweep_file(path)
+    assert list(got) == ["a", "b"]
+    assert got["a"] == resolve_config(env="square", episodes=3, seeds="0-2", noise_var=0.3, sigma_tol2=0.5)
+    assert got["b"] == resolve_config(env="square", episodes=4, seeds="5", noise_var=0.2, sigma_tol2=0.5)
+
+
+def test_an_experiments_rows_are_merged_from_its_finished_jobs_with_the_job_named(tmp_path, monkeypatch):
+    rows = {"j0": pd.DataFrame(dict(seed=[0, 0], episode=[1, 2], steps=[5, 6])),
+            "j1": pd.DataFrame(dict(seed=[1], episode=[1], steps=[7]))}
+    finished = {"j0": True, "j1": True}
+    monkeypatch.setattr(runner.RunFolder, "finished", lambda self: finished[self.path.name])
+    monkeypatch.setattr(runner.RunFolder, "episodes", lambda self: rows[self.path.name])
+    jobs = [job([0], index=0, folder=str(tmp_path / "e" / "jobs" / "j0")),
+            job([1], index=1, folder=str(tmp_path / "e" / "jobs" / "j1"))]
+    (tmp_path / "e").mkdir()
+    merged = sweep.merge(tmp_path, "e", jobs)
+    assert merged.to_dict("list") == dict(seed=[0, 0, 1], episode=[1, 2, 1], steps=[5, 6, 7], job=[0, 0, 1])
+    assert pd.read_csv(tmp_path / "e" / "episodes.csv").to_dict("list") == merged.to_dict("list")
+    finished["j1"] = False
+    assert sweep.merge(tmp_path, "e", jobs) is None
