@@ -164,6 +164,12 @@ def test_the_cost_figure_draws_block_means_a_panel_per_discount_with_the_schedul
             assert list(line.get_ydata()) == pytest.approx([k * 1.5] * 3)       # ms: the mean of k and 2k
             assert (line.get_color(), line.get_linestyle()) == look(cost_ax, line.get_label())
     assert t90.get_title() == "learners with gamma = 0.9 (schedules in each panel)"
+    # the time figure's legend holds each run's own line (not the figure's lines in turn: the
+    # schedule, drawn in both panels, first)
+    la.figures(runs[::-1], ["optimum", "DDPG", "DGPQ"], tmp_path, block=2)
+    time = drawn["liquidation_time.png"][0]
+    dgpq = next(ln for ln in time.axes[1].get_lines() if ln.get_label() == "DGPQ")
+    assert time.legends[0].legend_handles[2].get_color() == dgpq.get_color()
     assert title == "a title"
 
 
@@ -455,13 +461,13 @@ def test_the_section_by_hand_with_its_figures_stubbed(tmp_path, monkeypatch):
         called.append((runs, labels, out, block, last, title))
         (out / "comparison.md").write_text("TABLE\n")
     monkeypatch.setattr(la, "figures", figures)
-    ours = run("ddpg", episodes=24, ac_cost=1.0, steps=lambda s, e: 60 if e <= 12 else 2 + s)   # 2.5 after 12
+    ours = run("ddpg", episodes=20, ac_cost=1.0, steps=lambda s, e: 60 if e <= 10 else 2 + s)   # 2.5 after 10
     course = run("ddpg", episodes=30, ac_cost=1.0, steps=lambda s, e: 1 if e <= 15 else 10 * (s + 1))  # 15 after 15
     runs = {"liq-ddpg-utility-ratio": ours, "liq-ddpg-course": course}
     judged = [SimpleNamespace(bullet=lambda: "- one"), SimpleNamespace(bullet=lambda: "- two")]
     text = la.reproduce_section(runs, tmp_path, "LABEL", "TITLE", judged)
-    assert called == [([ours, course], ["ddpg-utility-ratio", "ddpg-course"], tmp_path / "liquidation", 2, 12,
-                       "TITLE")]
+    assert called == [([ours, course], ["ddpg-utility-ratio", "ddpg-course"], tmp_path / "liquidation", 2, 10,
+                       "TITLE")]                                      # half the shortest run, in blocks of a fifth
     assert text == (
         "## Optimal liquidation (seed report 4.4) -- Figures 6-7\n\nLABEL\n\nTABLE\n\n- one\n- two\n"
         "- The seed report's utility-ratio reward pays most for selling everything at once. DDPG on it trades 2.5 "

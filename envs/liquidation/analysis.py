@@ -173,7 +173,7 @@ def comparison_table(runs, labels, last: int) -> str:
 
 
 # ------------------------------------------------------------ what a learner trades (evaluation)
-def holdings(folder: Path, episodes: int = 10):
+def holdings(folder: Path, episodes: int):
     """Holdings x_0..x_N as fractions of the shares, (seeds x episodes, N + 1), of the run in
     ``folder`` (its last checkpoint, exploration off) on evaluation episodes (streams keyed
     apart from training's); a seed that has sold out holds 0 from then on."""
