@@ -27,6 +27,7 @@ from trl_dgpq.analysis.runs import Run
     # a lower end at 0 taken as 1e-12 of the top: 1-2-5 from 5e-12 (1e-12 and 2e-12 are below 3e-12) to 2
     (0, 3, False, [m * 10.0 ** e for e in range(-12, 1) for m in (1, 2, 5)][2:-1]),
     (1.01, 1.02, False, []),                             # no set puts a tick inside
+    (0.1, 0.9, False, [0.1, 0.2, 0.5]),                  # below 1 too
 ])
 def test_log_ticks_are_the_sparsest_mantissas_with_three_inside(lo, hi, integer, want):
     got = fg.LogTicks(integer=integer).tick_values(lo, hi)
@@ -34,6 +35,7 @@ def test_log_ticks_are_the_sparsest_mantissas_with_three_inside(lo, hi, integer,
 
 
 def test_log_ticks_ask_for_at_least_least_and_read_the_axes_view():
+    assert fg.LogTicks().tick_values(1.5, 4) == [1.5, 2, 3, 4]                  # not whole numbers only by default
     assert fg.LogTicks(least=2).tick_values(17, 40) == [20, 30]
     assert fg.LogTicks(least=1).tick_values(17, 40) == [20]
     fig, ax = plt.subplots()
@@ -47,7 +49,7 @@ def test_log_ticks_ask_for_at_least_least_and_read_the_axes_view():
 
 @pytest.mark.parametrize("value, want", [(350e3, "$350k"), (1.2e6, "$1.2M"), (2.5e9, "$2.5B"), (-2e5, "-$200k"),
                                          (1000, "$1k"), (999, "$999"), (0.5, "$0.5"), (-3, "-$3"),
-                                         (123456, "$123k"), (1e6, "$1M")])
+                                         (123456, "$123k"), (1e6, "$1M"), (1e9, "$1B")])
 def test_dollars(value, want):
     assert fg.dollars(value) == want and fg.dollars(value, 7) == want
 
@@ -109,6 +111,17 @@ def test_long_titles_are_wrapped_at_spaces_until_they_fit():
     assert a.title.get_window_extent(renderer).width <= a.bbox.width
     assert "\n" in a.get_title() and a.get_title().replace("\n", " ") == long
     assert b.get_title() == "short"
+    # a line break of the title's own is kept; the width stops shrinking at 12 characters
+    d = plt.figure(figsize=(3, 1)).add_subplot()
+    d.set_title("a short first line\n" + " ".join(["second"] * 20))
+    fg.fit_titles(d.figure)
+    assert d.get_title().split("\n")[0] == "a short first line" and d.get_title().count("\n") > 1
+    for text, wrapped in (("ab ab ab ab ab", "ab ab ab ab\nab"),     # 14 characters: wrapped at 12, no further
+                          ("abc abc abc a", "abc abc abc\na")):       # 13: wrapped at 11
+        e = plt.figure(figsize=(0.2, 0.2)).add_subplot()
+        e.set_title(text)
+        fg.fit_titles(e.figure)
+        assert e.get_title() == wrapped
     c = plt.figure(figsize=(1, 1)).add_subplot()
     c.set_title("a" * 40)                                      # no space to break at: left as it is
     fg.fit_titles(c.figure)
@@ -122,6 +135,7 @@ def test_save_titles_lays_out_writes_at_120_dpi_and_closes(tmp_path):
     ax.set_title("t")
     assert fg.save(fig, tmp_path / "a.png", "the title") == tmp_path / "a.png"
     assert fig._suptitle.get_text() == "the title" and fig.number not in plt.get_fignums()
+    assert fig._suptitle.get_fontsize() == 9
     assert Image.open(tmp_path / "a.png").size == (240, 180)
     fig, ax = plt.subplots(figsize=(2, 1.5))
     fg.save(fig, tmp_path / "b.png")
@@ -129,6 +143,11 @@ def test_save_titles_lays_out_writes_at_120_dpi_and_closes(tmp_path):
     fig, ax = plt.subplots(figsize=(2, 1.5), layout="constrained")
     ax.set_ylabel("y")
     fg.save(fig, tmp_path / "c.png")
+    fig = plt.figure()
+    other = plt.figure()                                          # made after it: the current figure stays open
+    fg.save(fig, tmp_path / "e.png")
+    assert other.number in plt.get_fignums() and fig.number not in plt.get_fignums()
+    plt.close(other)
     plain = plt.figure(figsize=(2, 1.5))
     ax = plain.add_subplot()
     ax.set_ylabel("a label")
@@ -144,7 +163,7 @@ def test_what_a_figure_draws_is_kept_beside_it_and_read_back_only_where_it_is_tr
     data = {"a": [[1.0, 0.5], [0.25, 0.0]], "b": []}
     assert fg.save_drawn(figs / "x.json.xz", data) == figs / "x.json.xz"
     with lzma.open(figs / "x.json.xz", "rt") as f:
-        assert json.load(f) == data
+        assert f.read() == '{"a":[[1.0,0.5],[0.25,0.0]],"b":[]}'                # compact
     assert fg.load_drawn(figs / "x.json.xz") is None                       # not a publication: another run's?
     assert fg.load_drawn(figs / "x.json.xz", fresh=True) == data
     assert fg.load_drawn(figs / "y.json.xz", fresh=True) is None           # nothing there
@@ -197,6 +216,12 @@ def test_the_episode_figures_draw_each_runs_median_and_iqr_per_episode(tmp_path,
     assert steps.get_title() == "steps per episode: median over seeds (T)"
     assert time.get_title() == "wall time per step (ms, per seed): median over seeds (T)"
     assert steps.get_legend().get_title().get_text() == "shaded: inter-quartile range"
+    for ax in (steps, time):
+        assert tuple(ax.figure.get_size_inches()) == (6.4, 4.0) and ax.title.get_fontsize() == 9
+        legend = ax.get_legend()
+        assert {t.get_fontsize() for t in [*legend.get_texts(), legend.get_title()]} == {8}
+        assert {g.get_alpha() for g in ax.yaxis.get_gridlines()} == {0.3}
+        assert a.get_linewidth() == 1.2
     assert all(float(t).is_integer() for t in steps.xaxis.get_major_locator().tick_values(1, 3))
     fg.episode_figures([one], ["A"], tmp_path, logy_steps=False)
     steps = drawn["steps_per_episode.png"].axes[0]
@@ -224,6 +249,9 @@ def test_the_evaluation_figure_is_a_box_per_run_with_an_eval_csv(tmp_path, drawn
     assert ax.get_yscale() == "log" and ax.get_ylabel() == "steps to goal (log scale)"
     assert ax.yaxis.get_major_locator().integer
     assert ax.get_title() == "evaluation, exploration off\n(box: quartiles; triangle: mean)"
+    assert ax.title.get_fontsize() == 9 and ax.get_xticklabels()[0].get_fontsize() == 7
+    assert {g.get_alpha() for g in ax.yaxis.get_gridlines()} == {0.3}
+    assert tuple(drawn["eval_returns.png"].get_size_inches()) == (4.0, 4.0)
     means = [ln for ln in ax.get_lines() if ln.get_marker() == "^"]
     assert [list(m.get_ydata()) for m in means] == [[pytest.approx(294 / 6)]]
     narrow = evaluated("narrow", [[17, 18, 89]])                             # 89 < 5 x 18
@@ -236,6 +264,9 @@ def test_the_evaluation_figure_is_a_box_per_run_with_an_eval_csv(tmp_path, drawn
     assert ax.get_yscale() == "linear" and ax.get_ylabel() == "steps"
     fg.evaluation_figure([ret], ["r"], tmp_path, "return", "return")
     assert drawn["eval_returns.png"].axes[0].get_yscale() == "linear"        # a value below 0: never log
+    zero = evaluated("zero", [[0.0, 2.0, 10.0]], column="return")
+    fg.evaluation_figure([zero], ["z"], tmp_path, "return", "return")
+    assert drawn["eval_returns.png"].axes[0].get_yscale() == "linear"        # nor at 0
     pos = evaluated("pos", [[1.0, 2.0, 10.0]], column="return")
     fg.evaluation_figure([pos], ["p"], tmp_path, "return", "return")
     ax = drawn["eval_returns.png"].axes[0]
