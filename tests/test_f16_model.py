@@ -1,6 +1,7 @@
 """The F-16's potential ablation with model error (envs/f16/model_ablation.py): its plan, its
 claims' measures on runs whose values are known, and its section."""
 import re
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -210,3 +211,50 @@ def test_the_claims_say_what_they_compare(planned):
     assert " at its defaults, each shaped" in part.SUMMARY and "one fixed draw each" in part.SUMMARY
     assert "(at its defaults and tuned by its own validated studies)" in m.Ablation("05", m.SCALES).SUMMARY
     assert part.FIRST_SEED == 30 and part.folder == "f16-model-gwh14" and part.SCALES is m.GWH14_SCALES
+
+
+def test_the_figure_reads_back_as_drawn(planned, monkeypatch):
+    """f16_model.png (save stubbed): one errorbar line per learner over the groups (none, cost, LQR
+    at 0, 20 and 50 % error), each IQM at its group, shifted 0.07 apart; doing nothing and PD as
+    black lines labelled with their values; the groups named on the x axis."""
+    import matplotlib.pyplot as plt
+
+    from trl_dgpq.analysis import figures
+    got = {}
+
+    def save(fig, path, title=""):
+        got[path.name] = (fig, title)
+        plt.close(fig)
+        return path
+    monkeypatch.setattr(figures, "save", save)
+    runs = runs_with(planned, values)
+    assert m.figure(runs, "05", Path("out"), "T") == Path("out") / "f16_model.png"
+    fig, title = got["f16_model.png"]
+    ax, = fig.axes
+    assert title == "T" and tuple(fig.get_size_inches()) == (6.4, 4.2)
+    bars = {c.get_label(): c for c in ax.containers}
+    lines = {ln.get_label(): ln for ln in ax.get_lines() if not ln.get_label().startswith("_")}
+    assert list(bars) == ["dgpq-lq5", "dgpq-lq10", "dqn", "dqn-tuned"] and list(lines) == ["nothing (-140)", "pd (-70)"]
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == [*lines, *bars]
+    x = np.arange(5)
+    for k, (who, want) in enumerate((("dgpq-lq5", [-70, -70, -70, -80, -100]), ("dgpq-lq10", [-120] * 5),
+                                     ("dqn", [-110] * 5), ("dqn-tuned", [-100] * 5))):
+        line, caps, (bar,) = bars[who].lines
+        assert list(line.get_xdata()) == pytest.approx(x + 0.07 * (k - 1.5))
+        assert list(line.get_ydata()) == pytest.approx([w - 0.095 for w in want], abs=0.01)   # less the seeds' spread
+        assert line.get_marker() == "o" and line.get_markersize() == 4 and line.get_linewidth() == 1.2
+        assert len(caps) == 2 and caps[0].get_markersize() == 6                   # capsize 3: caps 2 x 3 points
+        low, high = (np.array([seg[i, 1] for seg in bar.get_segments()]) for i in (0, 1))
+        assert ((low <= line.get_ydata()) & (line.get_ydata() <= high)).all() and (high > low).all()
+    for who, style in (("nothing (-140)", ":"), ("pd (-70)", "--")):
+        assert (lines[who].get_linestyle(), lines[who].get_color(), lines[who].get_linewidth()) == (style, "k", 0.9)
+    assert [t.get_text() for t in ax.get_xticklabels()] == [
+        "no potential", "cost", "LQR, true model", "LQR\n±20 %", "LQR\n±50 %"]
+    assert ax.get_xticklabels()[0].get_fontsize() == 7
+    assert ax.get_title() == "flight-05 (a decision every 0.5 s, γ 0.9)" and ax.title.get_fontsize() == 9
+    assert ax.get_ylabel() == "episode reward, episodes 91-100\n(IQM over seeds [95 % CI])"
+    assert {g.get_alpha() for g in ax.yaxis.get_gridlines()} == {0.3}
+    assert {t.get_fontsize() for t in ax.get_legend().get_texts()} == {7}
+    m.figure(runs, "gwh14", Path("out"), "")
+    ax = got["f16_model.png"][0].axes[0]
+    assert [c.get_label() for c in ax.containers] == ["dgpq-lq5", "dgpq-lq10", "dqn"]
