@@ -595,6 +595,7 @@ def test_an_out_a_node_cannot_write_is_named_in_one_line(tmp_path):
     reason = sweep.writable_here(str(blocker / "out"))
     assert reason.startswith("node ") and "cannot write" in reason and str(blocker / "out") in reason
     assert sweep.writable_here(str(tmp_path / "fine")) is None and (tmp_path / "fine").is_dir()
+    assert list((tmp_path / "fine").iterdir()) == []                              # its probe removed
 
 
 def test_a_plan_that_grew_keeps_the_finished_jobs_and_adds_the_new_ones(tmp_path):

@@ -1,9 +1,8 @@
-"""collectors/sweep.py's small parts by hand, without a worker process: a job's name and planned
-seed-steps, the time left of a backend that does not say when jobs start, a running job's floor,
-the clock, the makespan of a schedule, a job's outcome from its status, the exit code's lines,
-the jobs described, the seed slices of a plan, a folder's writability, a sweep file's refusals,
-and an experiment's rows merged from its jobs. (Real sweeps, signals and the time-left guide as a
-schedule: test_sweep.)"""
+"""collectors/sweep.py's small parts by hand, without a worker process: a job's name, a running
+job's time left, a job's outcome from its status, the exit code's lines, the jobs described, the
+seed slices of a plan, a sweep file's refusals word for word and its defaults, and an experiment's
+rows merged from its jobs. (Real sweeps, signals, planned seed-steps, the clock, the makespan and
+the time-left guide: test_sweep.)"""
 import signal
 from pathlib import Path
 
@@ -26,48 +25,12 @@ def test_a_jobs_name_spans_consecutive_seeds_and_lists_the_others():
     assert job([5, 4]).name == "e job 0 (seeds 5,4)"
 
 
-def test_planned_seed_steps_are_seeds_times_the_smaller_of_the_cap_and_the_budget():
-    assert sweep.planned_seed_steps(job([0, 1, 2])) == 3 * 10 * 50
-    assert sweep.planned_seed_steps(job([0, 1], env_steps=120)) == 2 * 120
-    assert sweep.planned_seed_steps(job([0, 1], env_steps=900)) == 2 * 500        # the cap is smaller
-    gym = sweep.Job("g", 0, [0], "f", {"run": {"env": "gym:CartPole-v1", "episodes": 4, "seeds": [0]},
-                                       "env": {"max_steps": 0}})
-    assert sweep.planned_seed_steps(gym) == 4 * 500                                  # CartPole's registered cap
-
-
-def test_minutes_left_at_the_done_jobs_rate_with_half_of_each_running_one_done():
-    """Done jobs of cost 10 and 30 took 8 minutes; left: 20 (running) and 40. Half the running one
-    counts as done: 8 x (60 - 10) / (40 + 10) = 8."""
-    cost = {"a": 10, "b": 30, "c": 20, "d": 40}.get
-    assert sweep.minutes_left(8.0, ["a", "b"], ["c", "d"], cost, running=1) == pytest.approx(8.0)
-    assert sweep.minutes_left(8.0, ["a", "b"], ["c", "d"], cost) == pytest.approx(8.0 * 60 / 40)
-    assert sweep.minutes_left(8.0, [], ["c"], cost) == 0.0                          # nothing done: no rate
-    assert sweep.minutes_left(8.0, [], ["c", "d"], cost, running=1) == pytest.approx(8.0 * 50 / 10)
-    assert sweep.minutes_left(3.0, [job([0])], [job([0, 1])]) == pytest.approx(6.0)   # planned seed-steps
-
-
 def test_a_running_jobs_time_left_is_its_estimate_less_what_it_ran_at_least_a_quarter_of_that():
     assert sweep.running_left(100.0, 30.0) == 70.0
     assert sweep.running_left(100.0, 80.0) == 20.0                                    # 0.25 x 80 = 20: equal
     assert sweep.running_left(100.0, 90.0) == 22.5
     assert sweep.running_left(100.0, 200.0) == 50.0
-
-
-@pytest.mark.parametrize("minutes, text", [(0.44, "0.4 min"), (9.96, "10.0 min"), (10.0, "10 min"),
-                                           (119.4, "119 min"), (120.0, "2.0 h"), (150.0, "2.5 h")])
-def test_the_clock(minutes, text):
-    assert sweep.clock(minutes) == text
-
-
-def test_the_makespan_gives_the_longest_jobs_first_to_the_worker_free_first():
-    """5, 4, 3, 3, 3 on two workers, longest first: 5 | 4, a 3 to the 4 (7), a 3 to the 5 (8), a 3
-    to the 7 (10): 10. (In the order given, 3 | 5, 3 to the 3 (6), 4 to the 5 (9), 3 to the 6: 9 | 9.)"""
-    assert sweep.makespan([3, 5, 3, 4, 3], 2) == 10.0
-    assert sweep.makespan([3, 5, 3, 4, 3], 1) == 18.0
-    assert sweep.makespan([3, 5], 4) == 5.0
-    assert sweep.makespan([], 3) == 0.0
-    with pytest.raises(ValueError, match="^workers must be >= 1, got 0$"):
-        sweep.makespan([1.0], 0)
+    assert sweep.clock(120.0) == "2.0 h" and sweep.clock(119.96) == "120 min"           # (the rest: test_sweep)
 
 
 def test_a_jobs_outcome_from_its_status_and_how_its_process_ended(tmp_path):
@@ -127,14 +90,6 @@ def test_a_plan_slices_each_experiments_seeds_and_gives_each_job_its_own_folder_
             sweep.plan({"a": a}, "out", None, groups={"a": bad})
     with pytest.raises(sweep.SweepError, match="^seeds_per_job must be >= 1, got 0$"):
         sweep.plan({"a": a}, "out", 0)
-
-
-def test_a_folder_is_writable_here_or_says_why_not(tmp_path):
-    assert sweep.writable_here(str(tmp_path / "new" / "out")) is None
-    assert (tmp_path / "new" / "out").is_dir() and list((tmp_path / "new" / "out").iterdir()) == []  # no probe left
-    (tmp_path / "file").write_text("")
-    why = sweep.writable_here(str(tmp_path / "file" / "out"))
-    assert why.startswith("node ") and why.endswith(f"cannot write {tmp_path / 'file' / 'out'}: Not a directory")
 
 
 def test_a_sweep_file_is_refused_in_one_line_naming_the_experiment(tmp_path):
