@@ -161,3 +161,23 @@ def saved_figures(monkeypatch):
         return savefig(self, fname, *args, **kwargs)
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", record)
     return saved
+
+
+@pytest.fixture
+def drawn(monkeypatch):
+    """{file name: (figure, title)} of what the figures hand to ``save``, which is stubbed: no PNG is
+    drawn (the slow part; ``saved_figures`` keeps the drawn ones), the figure is closed and its
+    axes, lines and texts stay there to read."""
+    from pathlib import Path
+
+    import matplotlib.pyplot as plt
+
+    from trl_dgpq.analysis import figures
+    got = {}
+
+    def save(fig, path, title=""):
+        got[Path(path).name] = (fig, title)
+        plt.close(fig)
+        return path
+    monkeypatch.setattr(figures, "save", save)
+    return got

@@ -213,23 +213,13 @@ def test_the_claims_say_what_they_compare(planned):
     assert part.FIRST_SEED == 30 and part.folder == "f16-model-gwh14" and part.SCALES is m.GWH14_SCALES
 
 
-def test_the_figure_reads_back_as_drawn(planned, monkeypatch):
+def test_the_figure_reads_back_as_drawn(planned, drawn):
     """f16_model.png (save stubbed): one errorbar line per learner over the groups (none, cost, LQR
     at 0, 20 and 50 % error), each IQM at its group, shifted 0.07 apart; doing nothing and PD as
     black lines labelled with their values; the groups named on the x axis."""
-    import matplotlib.pyplot as plt
-
-    from trl_dgpq.analysis import figures
-    got = {}
-
-    def save(fig, path, title=""):
-        got[path.name] = (fig, title)
-        plt.close(fig)
-        return path
-    monkeypatch.setattr(figures, "save", save)
     runs = runs_with(planned, values)
     assert m.figure(runs, "05", Path("out"), "T") == Path("out") / "f16_model.png"
-    fig, title = got["f16_model.png"]
+    fig, title = drawn["f16_model.png"]
     ax, = fig.axes
     assert title == "T" and tuple(fig.get_size_inches()) == (6.4, 4.2)
     bars = {c.get_label(): c for c in ax.containers}
@@ -256,5 +246,5 @@ def test_the_figure_reads_back_as_drawn(planned, monkeypatch):
     assert {g.get_alpha() for g in ax.yaxis.get_gridlines()} == {0.3}
     assert {t.get_fontsize() for t in ax.get_legend().get_texts()} == {7}
     m.figure(runs, "gwh14", Path("out"), "")
-    ax = got["f16_model.png"][0].axes[0]
+    ax = drawn["f16_model.png"][0].axes[0]
     assert [c.get_label() for c in ax.containers] == ["dgpq-lq5", "dgpq-lq10", "dqn"]

@@ -1,7 +1,6 @@
 """trl_dgpq/analysis/figures.py by hand: the log axis's ticks, the labels' formats, the runs' looks,
 the title wrapping, saving, the data kept beside a figure, and the figures every run gets (read back
 from the saved figure)."""
-import json
 import lzma
 from pathlib import Path
 
@@ -179,18 +178,6 @@ def a_run(path, rows):
     return Run(Path(path), df, {"run": {"env": "square", "agent": "dgpq", "preset": "p"}, "env": {}, "agent": {}})
 
 
-@pytest.fixture
-def drawn(monkeypatch):
-    got = {}
-
-    def save(fig, path, title=""):
-        got[Path(path).name] = fig
-        plt.close(fig)
-        return path
-    monkeypatch.setattr(fg, "save", save)
-    return got
-
-
 def test_the_episode_figures_draw_each_runs_median_and_iqr_per_episode(tmp_path, drawn):
     """Steps 10, 20, 60 of three seeds at episode 1 (median 20, IQR 15-40), 4, 4, 4 at episode 2;
     wall time 1 ms a step, then 2."""
@@ -198,7 +185,7 @@ def test_the_episode_figures_draw_each_runs_median_and_iqr_per_episode(tmp_path,
     one, two = a_run("a", rows), a_run("b", [(0, 1, 5, 0.05), (0, 2, 5, 0.05), (0, 3, 5, 0.05)])
     assert fg.episode_figures([one, two], ["A", "B"], tmp_path, title="T") == [tmp_path / "steps_per_episode.png",
                                                                               tmp_path / "time_per_step.png"]
-    steps, time = drawn["steps_per_episode.png"].axes[0], drawn["time_per_step.png"].axes[0]
+    steps, time = drawn["steps_per_episode.png"][0].axes[0], drawn["time_per_step.png"][0].axes[0]
     a, b = steps.get_lines()
     assert a.get_label() == "A (median, 3 seeds)" and b.get_label() == "B (median, 1 seeds)"
     assert list(a.get_xdata()) == [1, 2] and list(a.get_ydata()) == [20, 4] and list(b.get_ydata()) == [5] * 3
@@ -224,7 +211,7 @@ def test_the_episode_figures_draw_each_runs_median_and_iqr_per_episode(tmp_path,
         assert a.get_linewidth() == 1.2
     assert all(float(t).is_integer() for t in steps.xaxis.get_major_locator().tick_values(1, 3))
     fg.episode_figures([one], ["A"], tmp_path, logy_steps=False)
-    steps = drawn["steps_per_episode.png"].axes[0]
+    steps = drawn["steps_per_episode.png"][0].axes[0]
     assert steps.get_yscale() == "linear" and steps.get_ylabel() == "steps per episode"
     assert steps.get_title() == "steps per episode: median over seeds"
 
@@ -244,34 +231,34 @@ def test_the_evaluation_figure_is_a_box_per_run_with_an_eval_csv(tmp_path, drawn
     old = evaluated("old", [[1, 2]], column="return")
     assert fg.evaluation_figure([wide, none, old], ["w", "n", "o"], tmp_path, "steps", "steps to goal") == \
         tmp_path / "eval_returns.png"
-    ax = drawn["eval_returns.png"].axes[0]
+    ax = drawn["eval_returns.png"][0].axes[0]
     assert [t.get_text() for t in ax.get_xticklabels()] == ["w\n(2 seeds x 3)"]
     assert ax.get_yscale() == "log" and ax.get_ylabel() == "steps to goal (log scale)"
     assert ax.yaxis.get_major_locator().integer
     assert ax.get_title() == "evaluation, exploration off\n(box: quartiles; triangle: mean)"
     assert ax.title.get_fontsize() == 9 and ax.get_xticklabels()[0].get_fontsize() == 7
     assert {g.get_alpha() for g in ax.yaxis.get_gridlines()} == {0.3}
-    assert tuple(drawn["eval_returns.png"].get_size_inches()) == (4.0, 4.0)
+    assert tuple(drawn["eval_returns.png"][0].get_size_inches()) == (4.0, 4.0)
     means = [ln for ln in ax.get_lines() if ln.get_marker() == "^"]
     assert [list(m.get_ydata()) for m in means] == [[pytest.approx(294 / 6)]]
     narrow = evaluated("narrow", [[17, 18, 89]])                             # 89 < 5 x 18
     ret = evaluated("ret", [[-1.0, 2.0, 3.0]], column="return")
     fg.evaluation_figure([narrow, wide], ["a", "b"], tmp_path, "steps", "steps")
-    ax = drawn["eval_returns.png"].axes[0]
+    ax = drawn["eval_returns.png"][0].axes[0]
     assert ax.get_yscale() == "log"                                          # wide's 200 >= 5 x narrow's 18
     fg.evaluation_figure([narrow], ["a"], tmp_path, "steps", "steps")
-    ax = drawn["eval_returns.png"].axes[0]
+    ax = drawn["eval_returns.png"][0].axes[0]
     assert ax.get_yscale() == "linear" and ax.get_ylabel() == "steps"
     fg.evaluation_figure([ret], ["r"], tmp_path, "return", "return")
-    assert drawn["eval_returns.png"].axes[0].get_yscale() == "linear"        # a value below 0: never log
+    assert drawn["eval_returns.png"][0].axes[0].get_yscale() == "linear"        # a value below 0: never log
     zero = evaluated("zero", [[0.0, 2.0, 10.0]], column="return")
     fg.evaluation_figure([zero], ["z"], tmp_path, "return", "return")
-    assert drawn["eval_returns.png"].axes[0].get_yscale() == "linear"        # nor at 0
+    assert drawn["eval_returns.png"][0].axes[0].get_yscale() == "linear"        # nor at 0
     pos = evaluated("pos", [[1.0, 2.0, 10.0]], column="return")
     fg.evaluation_figure([pos], ["p"], tmp_path, "return", "return")
-    ax = drawn["eval_returns.png"].axes[0]
+    ax = drawn["eval_returns.png"][0].axes[0]
     assert ax.get_yscale() == "log" and not ax.yaxis.get_major_locator().integer
-    assert drawn["eval_returns.png"].get_size_inches()[0] == pytest.approx(4.0)
+    assert drawn["eval_returns.png"][0].get_size_inches()[0] == pytest.approx(4.0)
     fg.evaluation_figure([narrow, wide, pos, narrow], list("abcd"), tmp_path, "steps", "steps")
-    assert drawn["eval_returns.png"].get_size_inches()[0] == pytest.approx(1.2 + 1.3 * 3)
+    assert drawn["eval_returns.png"][0].get_size_inches()[0] == pytest.approx(1.2 + 1.3 * 3)
     assert np.isfinite(ax.get_ylim()).all()

@@ -70,23 +70,6 @@ def test_the_cost_axis_is_log_in_dollars_unless_a_mean_is_not_positive():
     plt.close(fig)
 
 
-@pytest.fixture
-def drawn(monkeypatch):
-    """{file name: (figure, title)} of what the figures hand to ``save``, which is stubbed: drawing
-    the PNGs (the slow part) is test_liquidation's and test_figures'."""
-    import matplotlib.pyplot as plt
-
-    from trl_dgpq.analysis import figures
-    got = {}
-
-    def save(fig, path, title=""):
-        got[Path(path).name] = (fig, title)
-        plt.close(fig)
-        return path
-    monkeypatch.setattr(figures, "save", save)
-    return got
-
-
 def three_runs(tmp_path):
     """DGPQ at gamma 0.99, DDPG at 0.9, the AC optimum (no discount): 5 episodes of 2 seeds; a
     run's shortfall is k x 1,500 x its episode's mean over seeds, its ac_cost twice that, its

@@ -49,22 +49,6 @@ def test_the_table_by_hand():
         "| b | 2 x 2 | 0.0% | – | 0.0% | never (2 never) | 0 | 2.00 |"]
 
 
-@pytest.fixture
-def drawn(monkeypatch):
-    """{file name: (figure, title)} handed to ``save`` (stubbed: the PNG itself is test_push's)."""
-    import matplotlib.pyplot as plt
-
-    from trl_dgpq.analysis import figures
-    got = {}
-
-    def save(fig, path, title=""):
-        got[Path(path).name] = (fig, title)
-        plt.close(fig)
-        return path
-    monkeypatch.setattr(figures, "save", save)
-    return got
-
-
 def test_the_figure_draws_the_final_distance_and_the_success_rate_per_episode(tmp_path, drawn, monkeypatch):
     """Upper panel: the median distance over seeds per episode (distance 0.1 x steps here), labelled
     with the seed count; lower: the share of seeds that succeeded, in the same colour; push.md is

@@ -3,7 +3,6 @@ costs against the AC optimum (seed report Figures 6-7), and paired comparisons (
 agent meets the same price paths on the same (seed, episode))."""
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import torch
