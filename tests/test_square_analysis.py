@@ -34,7 +34,7 @@ def test_the_section_by_hand_with_its_figures_stubbed(tmp_path, monkeypatch):
     monkeypatch.setattr(figures, "episode_figures", lambda runs, labels, out, title: drawn.append(
         (runs, labels, out, title)))
     monkeypatch.setattr(sq, "qhat_figure", lambda folder, out, title: qhat.append((folder, out, title)))
-    monkeypatch.setattr(evaluate, "job_folders", lambda path: [])
+    monkeypatch.setattr(evaluate, "job_folders", lambda path: [] if path == Path("runs/shaped") else None)
     shaped = run({0: [100, 50, 20, 18, 17, 16], 1: [100, 50, 20, 18, 17, 16]}, path="runs/shaped")
     long = run({4: [5000]}, max_steps=20_000, kernel_fits=[3], wall_s=[10.0])
     runs = {"square-shaped": shaped, "square-report-nocap": long}
@@ -57,17 +57,19 @@ def test_the_section_by_hand_with_its_figures_stubbed(tmp_path, monkeypatch):
         "![steps](square/steps_per_episode.png) ![time](square/time_per_step.png) "
         "![kernels](square-kernels/steps_per_episode.png)\n")
     # a checkpoint: Q̂ drawn from it, and the figure named; the kernels' runs in their figure by their names
-    monkeypatch.setattr(evaluate, "job_folders", lambda path: [path])
+    monkeypatch.setattr(evaluate, "job_folders", lambda path: [path] if path == Path("runs/shaped") else None)
     monkeypatch.setattr(sq, "qhat_figure", lambda folder, out, title: qhat.append((folder, out, title)) or "x")
-    exact, manifold = run({0: [9]}), run({0: [8]})
-    runs = {"square-shaped-manifold": manifold, "square-shaped": shaped, "square-shaped-exact": exact}
+    exact, manifold, paper, report = run({0: [9]}), run({0: [8]}), run({0: [7]}), run({0: [6]})
+    runs = {"square-shaped-manifold": manifold, "square-paper": paper, "square-shaped": shaped,
+            "square-report": report, "square-shaped-exact": exact}
     text = sq.reproduce_section(runs, tmp_path, "L", "T", [])
     assert qhat[-1] == (Path("runs/shaped"), tmp_path / "square", "T")
+    assert drawn[-2] == ([shaped, report, paper], ["shaped", "report", "paper"], tmp_path / "square", "T")
     assert drawn[-1] == ([exact, manifold], ["RBF (exact GP)", "manifold (exact GP)"], tmp_path / "square-kernels",
                          "T")
     assert text.endswith("![kernels](square-kernels/steps_per_episode.png) ![Q̂](square/qhat.png)\n")
-    assert [line.split(" | ")[0] for line in text.splitlines() if line.startswith("| shaped")] == [
-        "| shaped-manifold", "| shaped", "| shaped-exact"]
+    assert [line.split(" | ")[0] for line in text.splitlines() if line.startswith(("| shaped", "| paper", "| report"))
+            ] == ["| shaped-manifold", "| paper", "| shaped", "| report", "| shaped-exact"]
     del runs["square-shaped"]
     sq.reproduce_section(runs, tmp_path, "L", "T", [])
     assert qhat[-1] == (None, tmp_path / "square", "T")                      # no shaped run
@@ -114,6 +116,34 @@ def test_the_qhat_figure_reads_back_as_drawn(tmp_path, monkeypatch, saved_figure
     assert len(fig.axes) == 7                                                 # two colour bars
     assert fig._suptitle.get_text() == ("T: seed 3 after square-shaped's training; dots: Q̂'s pairs; red: the goal "
                                         "and a greedy evaluation episode (2 steps)")
+    for ax in panels[3:]:
+        im, = ax.get_images()
+        assert im.origin == "lower" and im.get_extent() == [0, 1, 0, 1]
+    assert value.get_cmap().name == "viridis" and value.get_clim() == (q.max(-1).min(), q.max(-1).max())
+    assert action.get_cmap().name == "tab10" and action.get_cmap().N == 3
+    assert [(h.get_marker(), h.get_color()) for h in panels[4].get_legend().legend_handles] == [
+        ("s", action.get_cmap()(a)) for a in range(3)]
+    legend = panels[4].get_legend()
+    assert legend._loc == 4 and {t.get_fontsize() for t in legend.get_texts()} == {7}   # lower right
+    # the colour bars: the Q̂ panels' shared scale beside the last of them, the greedy value's beside it
+    bars = [ax for ax in fig.axes if ax not in panels]
+    assert [b.get_ylim() for b in bars] == [(q.min(), q.max()), value.get_clim()]
+    for bar, parent, nxt in zip(bars, (panels[2], panels[3]), (panels[3], panels[4])):
+        box, p = bar.get_position(), parent.get_position()
+        assert p.x1 < box.x0 < nxt.get_position().x0
+    for ax in panels:
+        assert ax.title.get_fontsize() == 9
+        circle, = ax.patches
+        assert circle.get_edgecolor() == (1.0, 0.0, 0.0, 1.0) and circle.get_linewidth() == 1.2
+        path = ax.get_lines()[-1]
+        assert (path.get_linestyle(), path.get_color(), path.get_linewidth()) == ("-", "r", 1.0)
+    for ax in panels[:3]:
+        dots = ax.get_lines()[0]
+        assert (dots.get_color(), dots.get_markersize(), dots.get_alpha()) == ("w", 2, 0.7)
+    assert fig._suptitle.get_fontsize() == 9 and tuple(fig.get_size_inches()) == pytest.approx((15.5, 3.3))
+    assert type(fig.get_layout_engine()).__name__ == "ConstrainedLayoutEngine"
+    from PIL import Image
+    assert Image.open(tmp_path / "qhat.png").size == (1705, 363)                    # 110 dpi
     assert saved_figures.problems("qhat.png") == []
     sq.qhat_figure(Path("run"), tmp_path)
     assert saved_figures["qhat.png"]._suptitle.get_text().startswith("seed 3 after")
@@ -168,13 +198,61 @@ def test_the_figures_of_a_run_are_the_episode_figures_and_the_first_dgpq_runs_qh
     monkeypatch.setattr(evaluate, "job_folders", lambda path: [] if path.name == "none" else [path])
     asked = []
     monkeypatch.setattr(sq, "qhat_figure", lambda folder, out, title: asked.append(folder) or (
-        None if folder.name == "nothing" else out / "qhat.png"))
+        None if folder.name == "nothing" else out / f"qhat {title}.png"))
     dqn, none, dgpq, other = (run({0: [1]}, path=p, agent=a) for p, a in (
         ("runs/dqn", "dqn"), ("runs/none", "dgpq"), ("runs/dgpq", "dgpq"), ("runs/other", "dgpq")))
     assert sq.figures([dqn, none, dgpq, other], list("abcd"), tmp_path, title="T") == ["episodes T",
-                                                                                     tmp_path / "qhat.png"]
+                                                                                     tmp_path / "qhat T.png"]
     assert asked == [Path("runs/dgpq")]                                       # the first with a checkpoint only
     nothing = run({0: [1]}, path="runs/nothing")
     assert sq.figures([nothing, dgpq], list("ab"), tmp_path) == ["episodes "] and asked[-1] == Path("runs/nothing")
     unconfigured = Run(Path("runs/dgpq"), dgpq.df, None)
     assert sq.figures([unconfigured], ["u"], tmp_path) == ["episodes "] and len(asked) == 2
+
+
+def test_the_greedy_path_is_its_rows_positions_until_that_row_is_done(monkeypatch):
+    """Evaluation streams, then the row's start and its position after each step of an episode
+    played until that row ends (not every row)."""
+    import trl_dgpq.collectors.evaluate as evaluate
+    calls = []
+    obs = lambda k: {"observation": torch.tensor([[0.1 * k, 0.0], [0.0, 0.1 * k]])}  # noqa: E731
+    env = SimpleNamespace(for_evaluation=lambda: calls.append("evaluation"), reset=lambda: calls.append("reset") or
+                          obs(0))
+    agent = SimpleNamespace(exploit=lambda td: "greedy", act=lambda td: "exploring")
+
+    def steps(e, policy, td, row):
+        calls.append(("steps", row, policy(td)))
+        return iter([(None, obs(k), None) for k in (1, 2)])
+    monkeypatch.setattr(evaluate, "episode_steps", steps)
+    assert np.allclose(sq.greedy_path(env, agent, 1), [[0.0, 0.0], [0.0, 0.1], [0.0, 0.2]])
+    assert calls == ["evaluation", "reset", ("steps", 1, "greedy")]
+    assert np.allclose(sq.greedy_path(env, agent), [[0.0, 0.0], [0.1, 0.0], [0.2, 0.0]])
+    assert calls[-1] == ("steps", 0, "greedy")
+
+
+def test_the_claims_words_rules_and_runs():
+    """GWH14's two claims on each reward (its own, capped far out, and the seed report's shaped one:
+    a variant), the seed report's own episode-1 claim."""
+    from trl_dgpq.analysis.claims import Agrees
+    claims = {c.key: c for c in sq.declared_claims()}
+    assert list(claims) == ["square/paper/episode-1", "square/paper/episodes-3+", "square/shaped/episode-1",
+                            "square/shaped/episodes-3+", "square/report/episode-1"]
+    paper = "GWH14's reward, -1 per step (`paper`), capped at 20,000 steps"
+    shaped = "the seed report's shaped reward (`shaped`)"
+    for key, reward, name, base in (("paper", paper, "square-paper-nocap", "square-random-paper"),
+                                    ("shaped", shaped, "square-shaped", "square-random")):
+        one, later = claims[f"square/{key}/episode-1"], claims[f"square/{key}/episodes-3+"]
+        assert one.statement == f"DGPQ reaches the goal in ~100 steps in episode 1; run on {reward}"
+        assert later.statement == ("~20 steps per episode (the optimum ~17) within 2-3 episodes: each seed's median "
+                                   f"from episode 3 on; run on {reward}")
+        assert one.rule == Agrees(100, 3, higher_is_better=False) and later.rule == Agrees(20, 1.5,
+                                                                                           higher_is_better=False)
+        assert one.source == later.source == "GWH14" and one.needs == later.needs == (name,)
+        assert one.baseline is None and later.baseline == base
+    report = claims["square/report/episode-1"]
+    assert report.source == "the seed report" and report.needs == ("square-report-nocap",)
+    assert report.statement == ("its settings (exact GP, Section 5's values, L_Q 9) take 1,000-5,000 steps in "
+                                "episode 1; run capped at 20,000 steps")
+    assert report.rule == Agrees(5000 ** 0.5 * 1000 ** 0.5, 5 ** 0.5, higher_is_better=False)
+    assert report.rule.band() == pytest.approx((1000, 5000))
+    assert report.source_model == ("reward: the distance to the goal (its position)",)
