@@ -593,9 +593,10 @@ def test_an_out_a_node_cannot_write_is_named_in_one_line(tmp_path):
     blocker = tmp_path / "a-file"
     blocker.write_text("")
     reason = sweep.writable_here(str(blocker / "out"))
-    assert reason.startswith("node ") and "cannot write" in reason and str(blocker / "out") in reason
-    assert sweep.writable_here(str(tmp_path / "fine")) is None and (tmp_path / "fine").is_dir()
-    assert list((tmp_path / "fine").iterdir()) == []                              # its probe removed
+    assert reason.startswith("node ") and reason.endswith(f"cannot write {blocker / 'out'}: Not a directory")
+    assert sweep.writable_here(str(tmp_path / "fine" / "new")) is None and (tmp_path / "fine" / "new").is_dir()
+    assert list((tmp_path / "fine" / "new").iterdir()) == []                      # its probe removed
+    assert sweep.writable_here(str(tmp_path / "fine" / "new")) is None             # a folder there already
 
 
 def test_a_plan_that_grew_keeps_the_finished_jobs_and_adds_the_new_ones(tmp_path):

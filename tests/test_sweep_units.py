@@ -23,6 +23,7 @@ def test_a_jobs_name_spans_consecutive_seeds_and_lists_the_others():
     assert job([3, 5], index=2).name == "e job 2 (seeds 3,5)"
     assert job([7]).name == "e job 0 (seeds 7)"
     assert job([5, 4]).name == "e job 0 (seeds 5,4)"
+    assert job([3, 4]).name == "e job 0 (seeds 3-4)"
 
 
 def test_a_running_jobs_time_left_is_its_estimate_less_what_it_ran_at_least_a_quarter_of_that():
@@ -31,6 +32,8 @@ def test_a_running_jobs_time_left_is_its_estimate_less_what_it_ran_at_least_a_qu
     assert sweep.running_left(100.0, 90.0) == 22.5
     assert sweep.running_left(100.0, 200.0) == 50.0
     assert sweep.clock(120.0) == "2.0 h" and sweep.clock(119.96) == "120 min"           # (the rest: test_sweep)
+    assert sweep.clock(10.0) == "10 min" and sweep.clock(600.0) == "10.0 h"
+    assert sweep.minutes_left(2.0, ["a"], ["b"], {"a": 0.5, "b": 1.0}.get) == 4.0          # costs below 1
 
 
 def test_a_jobs_outcome_from_its_status_and_how_its_process_ended(tmp_path):
@@ -69,8 +72,9 @@ def test_the_jobs_described_per_experiment_in_the_plans_order():
     jobs = sweep.plan({"b": b, "a": a}, "out", 2)
     text = sweep.describe_jobs(jobs)
     first, second = text.split("; ")
-    assert first.startswith("b: ") and first.endswith(", 1 seed in 1 job")
-    assert second.startswith("a: ") and second.endswith(", 3 seeds in 2 jobs")
+    assert first.startswith("b: ") and first.endswith(", 1 seed in 1 job") and "corridor" in first
+    assert second.startswith("a: ") and second.endswith(", 3 seeds in 2 jobs") and "square" in second
+    assert "square" not in first and "corridor" not in second                           # each its own config
 
 
 def test_a_plan_slices_each_experiments_seeds_and_gives_each_job_its_own_folder_and_one_thread():
@@ -85,6 +89,10 @@ def test_a_plan_slices_each_experiments_seeds_and_gives_each_job_its_own_folder_
     assert [j.seeds for j in sweep.plan({"a": a}, "out", 2, groups={"a": 3})] == [[5, 6], [7, 8], [9]]
     assert [j.seeds for j in sweep.plan({"a": a}, "out", None, groups={"a": 5})] == [[5], [6], [7], [8], [9]]
     assert [j.seeds for j in sweep.plan({"a": a}, "out", None, groups={"b": 2})] == [[5, 6, 7, 8, 9]]
+    assert [j.seeds for j in sweep.plan({"a": a}, "out", None, groups={"a": 1})] == [[5, 6, 7, 8, 9]]
+    assert [j.seeds for j in sweep.plan({"a": a}, "out", 1)] == [[5], [6], [7], [8], [9]]
+    two = resolve_config(env="square", agent="dgpq", seeds=[5, 6], episodes=5, threads=2)
+    assert two["run"]["threads"] == 2 and [j.config["run"]["threads"] for j in sweep.plan({"t": two}, "o", 1)] == [1, 1]
     for bad in (0, 6):
         with pytest.raises(sweep.SweepError, match=rf"^a: {bad} jobs for 5 seeds$"):
             sweep.plan({"a": a}, "out", None, groups={"a": bad})
