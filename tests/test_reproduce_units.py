@@ -20,6 +20,7 @@ def test_the_scales_label_names_each_parts_seeds_and_lengths():
     assert reproduce.scale_label("full", ["square", "push"]) == (
         "*Scale: full* -- the seed report's lengths: square 10 seeds x 100 episodes, push 10 seeds x 100 episodes "
         "(some agents fewer: see the tables).")
+    assert reproduce.scale_label("report", ["square"]).startswith("*Scale: report* -- the seed report's lengths: ")
     assert reproduce.scale_label("report", ["gym"]).endswith(": gym 10 seeds x 20,000-120,000 env steps (some "
                                                              "agents fewer: see the tables).")
     assert "square-paper-tuned 4 seeds x 1,000 env steps" in reproduce.scale_label("quick", ["square-paper-tuned"])
@@ -80,6 +81,16 @@ def test_a_jobs_share_is_its_start_and_its_seeds_share_of_the_steps():
     assert reproduce.job_share(101.0, 1, 4) == pytest.approx(1.0 + 100.0 / 4)
     assert reproduce.job_share(101.0, 4, 4) == pytest.approx(101.0)
     assert reproduce.job_share(1.0, 3, 4) == pytest.approx(1.0)
+
+
+def test_every_estimated_experiments_jobs_are_counted_past_one_without_an_estimate():
+    """1 s to start each job, the rest shared by its seeds: 4 seeds in 2 groups of 2."""
+    from trl_dgpq.collectors.experiment import resolve_config
+    planned = {name: resolve_config(env="square", agent="random", seeds=[0, 1, 2, 3], episodes=2)
+               for name in ("x", "a")}
+    found = [("x", None, "no published experiment like it"), ("a", 101.0, "like")]
+    assert reproduce.job_seconds(planned, found, {"a": 2}) == pytest.approx([51.0, 51.0])
+    assert reproduce.job_seconds(planned, found, {}) == pytest.approx([101.0])
 
 
 @pytest.mark.parametrize("seconds, text", [(59.9, "1.0 min"), (3599.0, "60.0 min"), (3600.0, "1.00 h"),
