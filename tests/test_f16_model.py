@@ -236,8 +236,9 @@ def test_the_figure_reads_back_as_drawn(planned, drawn):
         assert len(caps) == 2 and caps[0].get_markersize() == 6                   # capsize 3: caps 2 x 3 points
         low, high = (np.array([seg[i, 1] for seg in bar.get_segments()]) for i in (0, 1))
         assert ((low <= line.get_ydata()) & (line.get_ydata() <= high)).all() and (high > low).all()
-    for who, style in (("nothing (-140)", ":"), ("pd (-70)", "--")):
+    for who, style, level in (("nothing (-140)", ":", -140), ("pd (-70)", "--", -70)):
         assert (lines[who].get_linestyle(), lines[who].get_color(), lines[who].get_linewidth()) == (style, "k", 0.9)
+        assert list(lines[who].get_ydata()) == [level, level]
     assert [t.get_text() for t in ax.get_xticklabels()] == [
         "no potential", "cost", "LQR, true model", "LQR\n±20 %", "LQR\n±50 %"]
     assert ax.get_xticklabels()[0].get_fontsize() == 7
