@@ -49,6 +49,8 @@ def test_the_settings_are_refused_at_their_boundaries_in_words():
     gx, gy = base.goal
     refused("block_start is already at the goal", block_start=(gx - base.goal_radius, gy))
     PushConfig(block_start=(gx - base.goal_radius - 0.001, gy), pusher_start=(gx - 0.5, gy)).cross_check()
+    refused("block_start is already at the goal", goal=(0.5, 0.0), goal_radius=0.125, block_start=(0.375, 0.0))
+    PushConfig(goal=(0.5, 0.0), goal_radius=0.125, block_start=(0.374, 0.0)).cross_check()   # exactly on the rim
 
 
 # ------------------------------------------------------------------ the quiet import
@@ -167,6 +169,7 @@ def test_a_worlds_state_is_the_bytes_of_a_bullet_file_and_comes_back_from_them(f
 
     def save(path, physicsClientId):
         assert os.path.basename(path) == "state.bullet" and physicsClientId == 7
+        assert os.path.isabs(path) and os.path.isdir(os.path.dirname(path))          # in a folder of its own
         with open(path, "wb") as f:
             f.write(b"\x01\x02state")
     fake_pb.answers["saveBullet"] = save
@@ -176,10 +179,11 @@ def test_a_worlds_state_is_the_bytes_of_a_bullet_file_and_comes_back_from_them(f
     def restore(fileName, physicsClientId):
         with open(fileName, "rb") as f:
             written["bytes"], written["name"] = f.read(), os.path.basename(fileName)
+        written["absolute"] = os.path.isabs(fileName)
     fake_pb.answers["restoreState"] = restore
     fake_pb.calls.clear()
     world.load(data, [0.1, 0.2, 0.3])
-    assert written == {"bytes": b"\x01\x02state", "name": "state.bullet"}
+    assert written == {"bytes": b"\x01\x02state", "name": "state.bullet", "absolute": True}
     assert fake_pb.named("changeConstraint") == [((3, [0.1, 0.2, 0.3]), dict(maxForce=33.0, physicsClientId=7))]
     fake_pb.answers["saveBullet"] = lambda path, physicsClientId: open(path, "wb").close()
     with pytest.raises(RuntimeError, match="^pybullet saved an empty state$"):
