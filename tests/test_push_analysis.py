@@ -69,7 +69,7 @@ def test_the_figure_draws_the_final_distance_and_the_success_rate_per_episode(tm
     assert list(rate.get_xdata()) == [1, 2, 3] and list(rate.get_ydata()) == pytest.approx([1 / 3, 1 / 3, 2 / 3])
     assert list(orate.get_ydata()) == pytest.approx([0, 0.5, 1])
     assert rate.get_color() == dist.get_color() != orate.get_color() == odist.get_color()
-    band = ax.collections[0].get_paths()[0].vertices                  # the IQR over seeds: 1.4-5 at episode 2
+    band = ax.collections[0].get_paths()[0].vertices                  # the IQR over 1, 3 and 5 m at episode 2
     assert sorted(set(band[band[:, 0] == 2, 1].round(9))) == [2.0, 4.0]
     assert ax.get_ylabel() == "block's final distance to the goal (m)"
     assert sax.get_ylabel() == "success rate (share of seeds)" and sax.get_xlabel() == "episode"

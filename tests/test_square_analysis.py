@@ -30,8 +30,8 @@ def test_the_section_by_hand_with_its_figures_stubbed(tmp_path, monkeypatch):
     episode, with 3 kernel fits and 2 ms a step: no episode 3."""
     import trl_dgpq.analysis.figures as figures
     import trl_dgpq.collectors.evaluate as evaluate
-    drawn, qhat = [], []
-    monkeypatch.setattr(figures, "episode_figures", lambda runs, labels, out, title: drawn.append(
+    figured, qhat = [], []
+    monkeypatch.setattr(figures, "episode_figures", lambda runs, labels, out, title: figured.append(
         (runs, labels, out, title)))
     monkeypatch.setattr(sq, "qhat_figure", lambda folder, out, title: qhat.append((folder, out, title)))
     monkeypatch.setattr(evaluate, "job_folders", lambda path: [] if path == Path("runs/shaped") else None)
@@ -41,9 +41,9 @@ def test_the_section_by_hand_with_its_figures_stubbed(tmp_path, monkeypatch):
     judged = [SimpleNamespace(bullet=lambda: "- a verdict.")]
     text = sq.reproduce_section(runs, tmp_path, "LABEL", "TITLE", judged)
     assert (tmp_path / "square").is_dir() and (tmp_path / "square-kernels").is_dir()
-    assert drawn == [([shaped], ["shaped"], tmp_path / "square", "TITLE"), ([], [], tmp_path / "square-kernels",
+    assert figured == [([shaped], ["shaped"], tmp_path / "square", "TITLE"), ([], [], tmp_path / "square-kernels",
                                                                              "TITLE")]
-    assert qhat == [(None, tmp_path / "square", "TITLE")]                    # no checkpoint: drawn from kept data
+    assert qhat == [(None, tmp_path / "square", "TITLE")]                    # no checkpoint: figured from kept data
     assert text == (
         "## Square (seed report 4.1; GWH14's first experiment) -- Figures 2-4\n\nLABEL\n\n"
         "| run | seeds x episodes | episode 1 steps: IQM [95 % CI] over seeds | episodes 3+: each seed's median "
@@ -56,7 +56,7 @@ def test_the_section_by_hand_with_its_figures_stubbed(tmp_path, monkeypatch):
         "sigma_tol2 is reached after one sample, so the GPs hold a point or two and the kernel barely matters here.\n\n"
         "![steps](square/steps_per_episode.png) ![time](square/time_per_step.png) "
         "![kernels](square-kernels/steps_per_episode.png)\n")
-    # a checkpoint: Q̂ drawn from it, and the figure named; the kernels' runs in their figure by their names
+    # a checkpoint: Q̂ figured from it, and the figure named; the kernels' runs in their figure by their names
     monkeypatch.setattr(evaluate, "job_folders", lambda path: [path] if path == Path("runs/shaped") else None)
     monkeypatch.setattr(sq, "qhat_figure", lambda folder, out, title: qhat.append((folder, out, title)) or "x")
     exact, manifold, paper, report = run({0: [9]}), run({0: [8]}), run({0: [7]}), run({0: [6]})
@@ -64,8 +64,8 @@ def test_the_section_by_hand_with_its_figures_stubbed(tmp_path, monkeypatch):
             "square-report": report, "square-shaped-exact": exact}
     text = sq.reproduce_section(runs, tmp_path, "L", "T", [])
     assert qhat[-1] == (Path("runs/shaped"), tmp_path / "square", "T")
-    assert drawn[-2] == ([shaped, report, paper], ["shaped", "report", "paper"], tmp_path / "square", "T")
-    assert drawn[-1] == ([exact, manifold], ["RBF (exact GP)", "manifold (exact GP)"], tmp_path / "square-kernels",
+    assert figured[-2] == ([shaped, report, paper], ["shaped", "report", "paper"], tmp_path / "square", "T")
+    assert figured[-1] == ([exact, manifold], ["RBF (exact GP)", "manifold (exact GP)"], tmp_path / "square-kernels",
                          "T")
     assert text.endswith("![kernels](square-kernels/steps_per_episode.png) ![Q̂](square/qhat.png)\n")
     assert [line.split(" | ")[0] for line in text.splitlines() if line.startswith(("| shaped", "| paper", "| report"))

@@ -1,5 +1,5 @@
 """collectors/sweep.py's small parts by hand, without a worker process: a job's name, a running
-job's time left, a job's outcome from its status, the exit code's lines, the jobs described, the
+job's time left (and the clock's and minutes_left's boundaries test_sweep leaves out), a job's outcome from its status, the exit code's lines, the jobs described, the
 seed slices of a plan, a sweep file's refusals word for word and its defaults, and an experiment's
 rows merged from its jobs. (Real sweeps, signals, planned seed-steps, the clock, the makespan and
 the time-left guide: test_sweep.)"""

@@ -282,7 +282,8 @@ def course_sentence(runs: dict) -> str:
     c, o = half(course), half(ours)
     return (f"- The course's own DDPG (`course` preset: its uniform, never-reset OU noise, its initial weights, "
             f"critic then actor) trades {c:.1f} times per episode in its second half (mean over seed-episodes), "
-            f"ours on the same reward {o:.1f}: the course's agent sells in {'more' if c > o else 'fewer'} trades.")
+            f"ours on the same reward {o:.1f}: the course's agent sells in "
+            f"{'more' if c > o else 'fewer' if c < o else 'as many'} trades.")
 
 
 def market() -> ACModel:
