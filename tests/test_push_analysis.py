@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from tests.fake_pybullet import Recorder
 from trl_dgpq.analysis.claims import NoNumber
 from trl_dgpq.analysis.runs import Run
 from trl_dgpq.envs.push import analysis as pa
@@ -124,8 +125,8 @@ def test_the_section_by_hand_with_its_figures_stubbed(tmp_path, monkeypatch):
     judged = [SimpleNamespace(bullet=lambda: "- a claim."), SimpleNamespace(bullet=lambda: "- another.")]
     text = pa.reproduce_section(runs, tmp_path, "LABEL", "TITLE", judged)
     assert called == [([1, 2, 3], ["DGPQ RBF", "DGPQ manifold", "oracle"], tmp_path / "push", 20, "TITLE")]
-    assert text == ("## Block pushing (seed report 4.3) -- Figure 5\n\nLABEL\n\nTABLE\n\n- a claim.\n- another. GWH14 had "
-                    "no robot experiment.\n\n![push](push/push.png)\n")
+    assert text == ("## Block pushing (seed report 4.3) -- Figure 5\n\nLABEL\n\nTABLE\n\n- a claim.\n- another. GWH14 "
+                    "had no robot experiment.\n\n![push](push/push.png)\n")
     (tmp_path / "push" / "push.gif").write_bytes(b"")
     assert pa.reproduce_section(runs, tmp_path, "L", "T", judged).endswith(
         "![push](push/push.png) ![an evaluation episode](push/push.gif)\n")
@@ -145,45 +146,27 @@ def test_a_world_points_pixel_through_column_major_matrices_by_hand():
     assert pa.pixel((0.0, 0.5, 0.0), view, half, 400, 200) == pytest.approx((250.0, 75.0))
 
 
-class FakePybullet:
-    """Records the camera's and the renderer's calls; renders a made-up RGBA image."""
-    ER_TINY_RENDERER = 7
-
-    def __init__(self):
-        self.calls = []
-
-    def computeViewMatrixFromYawPitchRoll(self, *args):
-        self.calls.append(("view", args))
-        return "VIEW"
-
-    def computeProjectionMatrixFOV(self, *args):
-        self.calls.append(("projection", args))
-        return "PROJECTION"
-
-    def getCameraImage(self, width, height, view, projection, renderer, physicsClientId):
-        self.calls.append(("image", (width, height, view, projection, renderer, physicsClientId)))
-        rgba = np.arange(width * height * 4) % 251
-        return width, height, rgba.tolist(), None, None
-
-
 @pytest.fixture
 def fake_pb(monkeypatch):
+    """The camera's matrices as names; a made-up RGBA image rendered."""
     from trl_dgpq.envs.push import env
-    pb = FakePybullet()
+    pb = Recorder(computeViewMatrixFromYawPitchRoll="VIEW", computeProjectionMatrixFOV="PROJECTION",
+                  getCameraImage=lambda width, height, *_, **__: (
+                      width, height, (np.arange(width * height * 4) % 251).tolist(), None, None))
     monkeypatch.setattr(env, "pb", pb)
     return pb
 
 
 def test_the_camera_looks_at_the_table_from_its_side(fake_pb):
     assert pa.camera(480, 240) == ("VIEW", "PROJECTION")
-    assert fake_pb.calls == [("view", ((0.0, 0.0, 0.62), 0.6, 0.0, -45.0, 0.0, 2)),
-                             ("projection", (60.0, 2.0, 0.05, 5.0))]
+    assert fake_pb.named("computeViewMatrixFromYawPitchRoll") == [(((0.0, 0.0, 0.62), 0.6, 0.0, -45.0, 0.0, 2), {})]
+    assert fake_pb.named("computeProjectionMatrixFOV") == [((60.0, 2.0, 0.05, 5.0), {})] and len(fake_pb.calls) == 2
 
 
 def test_a_frame_is_the_rows_world_as_rgb(fake_pb):
     env = SimpleNamespace(worlds=[SimpleNamespace(client=4), SimpleNamespace(client=9)])
     got = pa.frame(env, 1, 6, 3)
-    assert fake_pb.calls[-1] == ("image", (6, 3, "VIEW", "PROJECTION", 7, 9))
+    assert fake_pb.named("getCameraImage") == [((6, 3, "VIEW", "PROJECTION"), dict(renderer=7, physicsClientId=9))]
     want = (np.arange(6 * 3 * 4) % 251).reshape(3, 6, 4)[..., :3]
     assert got.dtype == np.uint8 and got.shape == (3, 6, 3) and (got == want).all()
 

@@ -9,6 +9,7 @@ import sys
 import pytest
 import torch
 
+from tests.fake_pybullet import Recorder
 from trl_dgpq.envs.push import env as pe
 from trl_dgpq.envs.push.env import PushConfig
 
@@ -83,25 +84,6 @@ def test_pybullet_is_imported_once(monkeypatch):
 
 
 # ------------------------------------------------------------------ one world, as the calls it makes
-class Recorder:
-    """pybullet's functions as a log of calls; each returns ``answers[name]`` (a value, or a
-    function of the call) or None."""
-    DIRECT, JOINT_FIXED = 2, 4
-
-    def __init__(self, **answers):
-        self.calls, self.answers = [], answers
-
-    def __getattr__(self, name):
-        def call(*args, **kwargs):
-            self.calls.append((name, args, kwargs))
-            got = self.answers.get(name)
-            return got(*args, **kwargs) if callable(got) else got
-        return call
-
-    def named(self, name):
-        return [(a, k) for n, a, k in self.calls if n == name]
-
-
 @pytest.fixture
 def fake_pb(monkeypatch):
     bodies = iter(range(10, 20))
