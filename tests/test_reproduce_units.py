@@ -61,8 +61,9 @@ def test_the_summary_tallies_the_claims_of_the_domains_shown_and_names_those_not
     assert (tmp_path / "summary.md").read_text().startswith("The claims of " + ", ".join(every[:-1]) + " and "
                                                             + every[-1] + ", each judged")
     assert "Not in this report yet" not in (tmp_path / "summary.md").read_text()
-    (tmp_path / "data").mkdir()
-    (tmp_path / "data" / "manifest.json").write_text("{}")
+    from trl_dgpq.analysis.published import DATA, MANIFEST
+    (tmp_path / DATA).mkdir()
+    (tmp_path / DATA / MANIFEST).write_text("{}")
     reproduce.write_summary(tmp_path, "c", [], [], ["square"])
     assert "each judged by its rule on the published data of `c`" in (tmp_path / "summary.md").read_text()
     reproduce.write_summary(tmp_path, "c", [], [], [])

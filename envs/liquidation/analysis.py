@@ -247,8 +247,10 @@ CLOSED_SCALES = {**SCALES, "quick": (4, 100)}
 REPORT_ONLY = {"smoke": (1, 2), "report": (4, 11_000)}
 # TD3 (the paper's 256x256 networks) costs ~8 ms per seed-step against DDPG's ~0.5: 11,000 episodes
 # would take ~6 h on one core, so the report runs it for 3,000 (it had settled by 600 at 18,000 steps).
-# Quick: past its 1,000 steps of random actions (~16 steps an episode then), so that it updates.
-TD3_SCALES = {"smoke": (1, 2), "quick": (2, 70), "full": (4, 1000), "report": (4, 3_000)}
+# Quick: past its 1,000 steps of random actions (~16 steps an episode then), so that it updates
+# (one_reward.py's TD3 runs take the same quick size).
+TD3_QUICK = (2, 70)
+TD3_SCALES = {"smoke": (1, 2), "quick": TD3_QUICK, "full": (4, 1000), "report": (4, 3_000)}
 REPRODUCE = [
     ("liq-ac-optimal", dict(agent="ac-optimal"), CLOSED_SCALES),
     ("liq-twap", dict(agent="twap"), CLOSED_SCALES),

@@ -49,6 +49,8 @@ import pandas as pd
 
 from trl_dgpq.analysis import ms_per_seed_step
 
+from .analysis import TD3_QUICK
+
 LEARNERS = ("dgpq", "dqn", "ddpg", "td3")
 RIVALS = ("dqn", "ddpg", "td3")
 REWARDS = ("shortfall", "impact")
@@ -64,7 +66,7 @@ SMALL_TD3 = dict(actor_hidden=(24, 48), critic_hidden=(24, 48))    # DDPG's widt
 STUDY = dict(trials=30, seeds="1000-1004", env_steps=STEPS, episodes=100_000, objective="measure",
              window=STEP_WINDOW, validate=3, validation_seeds="1005-1014", sampler_seed=0)
 SCALES = {"smoke": (1, 4), "quick": (2, 30), "full": (10, EPISODES), "report": (10, EPISODES)}
-TD3_SCALES = {**SCALES, "quick": (2, 70)}   # quick: past TD3's 1,000 steps of random actions, so that it updates
+TD3_SCALES = {**SCALES, "quick": TD3_QUICK}   # quick: past TD3's 1,000 steps of random actions, so that it updates
 TITLE = "Liquidation on one reward: DGPQ, DQN, DDPG and TD3 on `shortfall` and on `impact`, tuned alike"
 SUMMARY = ("DGPQ, DQN, DDPG and TD3 (at DDPG's widths), each trained on the model-free shortfall reward and on the "
            "impact reward (which uses the AC model), each with the preset its own 30-trial study chose and "
