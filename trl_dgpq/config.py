@@ -163,12 +163,20 @@ def leaves(cls, path: Tuple[str, ...] = ()) -> List[Leaf]:
     return out
 
 
+@functools.lru_cache(maxsize=None)
+def _leaf_names(cls) -> Dict[str, Leaf]:
+    """{flat key or dotted path: leaf} of ``cls``, the first leaf a name fits winning; built once per
+    class (``with_overrides`` looks up every setting of every config it resolves)."""
+    names: Dict[str, Leaf] = {}
+    for leaf in leaves(cls):
+        names.setdefault(leaf.key, leaf)
+        names.setdefault(".".join(leaf.path), leaf)
+    return names
+
+
 def find_leaf(cls, key: str) -> Optional[Leaf]:
     """The leaf of ``cls`` named by flat key ``noise_var`` or dotted path ``gp.noise_var``."""
-    for leaf in leaves(cls):
-        if key in (leaf.key, ".".join(leaf.path)):
-            return leaf
-    return None
+    return _leaf_names(cls).get(key)
 
 
 def parse_value(leaf: Leaf, value):
