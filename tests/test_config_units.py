@@ -61,6 +61,25 @@ def test_a_flag_name_is_the_key_in_leaves_and_in_every_error():
     assert from_dict(Outer, {"inner": {"count": "4"}, "rate": "0.25"}) == Outer(Inner(4), 0.25)
 
 
+def test_a_name_that_is_one_leafs_key_and_anothers_path_finds_the_first_in_field_order():
+    @dataclass
+    class Inner:
+        size: int = setting(2, "a size", flag="rate")
+
+    @dataclass
+    class First:
+        rate: float = setting(0.5, "a rate", flag="speed")
+        inner: Inner = nested(Inner)
+
+    @dataclass
+    class Second:
+        inner: Inner = nested(Inner)
+        rate: float = setting(0.5, "a rate", flag="speed")
+    assert find_leaf(First, "rate").path == ("rate",) and find_leaf(Second, "rate").path == ("inner", "size")
+    assert find_leaf(First, "speed").path == ("rate",) and find_leaf(First, "inner.size").key == "rate"
+    assert find_leaf(First, "size") is None and find_leaf(First, "inner") is None
+
+
 def test_a_key_used_twice_in_one_tree_is_refused_naming_it():
     @dataclass
     class A:

@@ -1,8 +1,6 @@
 import numpy as np
 import pytest
 import torch
-from sklearn.gaussian_process import GaussianProcessRegressor
-from sklearn.gaussian_process.kernels import RBF, ConstantKernel
 
 from trl_dgpq.gp import ExactGP, GPNumericalError, ManifoldKernel, RBFKernel, SparseOnlineGP
 
@@ -11,6 +9,9 @@ D = torch.float64
 
 
 def sklearn_gp(X, y, noise=NOISE, ls=LS, os_=OS):
+    # (imported here: sklearn takes ~1 s to import, which every test process would pay at collection)
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel
     return GaussianProcessRegressor(ConstantKernel(os_, "fixed") * RBF(ls, "fixed"),
                                     alpha=noise, optimizer=None).fit(X, y)
 

@@ -163,15 +163,17 @@ def leaves(cls, path: Tuple[str, ...] = ()) -> List[Leaf]:
     return out
 
 
-@functools.lru_cache(maxsize=None)
-def _leaf_names(cls) -> Dict[str, Leaf]:
-    """{flat key or dotted path: leaf} of ``cls``, the first leaf a name fits winning; built once per
-    class (``with_overrides`` looks up every setting of every config it resolves)."""
+def leaf_names(cls) -> Dict[str, Leaf]:
+    """{flat key or dotted path: leaf} of ``cls``, the first leaf a name fits winning."""
     names: Dict[str, Leaf] = {}
     for leaf in leaves(cls):
         names.setdefault(leaf.key, leaf)
         names.setdefault(".".join(leaf.path), leaf)
     return names
+
+
+# built once per class: ``with_overrides`` looks up every setting of every config it resolves
+_leaf_names = functools.lru_cache(maxsize=None)(leaf_names)
 
 
 def find_leaf(cls, key: str) -> Optional[Leaf]:
