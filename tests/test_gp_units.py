@@ -108,6 +108,21 @@ def test_capacity_defaults_to_1024_and_doubles_when_full():
         assert gp.growth_bytes() == 8 * (grown + grown + grown + grown * grown) + 8, max_capacity
 
 
+def test_a_new_gps_factor_is_the_identity_and_its_unused_rows_stay_so():
+    """L over the whole capacity: the identity when empty, the points' factor in its corner and identity
+    rows below it after adds, a reset and a growth (what a checkpoint holds, byte for byte)."""
+    gp = ExactGP(RBFKernel(0.3, 1.0), 0.1, 1, batch_shape=(2,), capacity=3)
+    assert torch.equal(gp.L, torch.eye(3, dtype=D).expand(2, 3, 3)) and gp.L.dtype == D
+    gp.add(torch.tensor([[0.1], [0.2]], dtype=D), torch.zeros(2, dtype=D), mask=torch.tensor([True, False]))
+    assert torch.equal(gp.L[0, 1:, 1:], torch.eye(2, dtype=D)) and torch.equal(gp.L[1], torch.eye(3, dtype=D))
+    for t in range(3):
+        gp.add(torch.tensor([[0.3 * t], [0.4]], dtype=D), torch.zeros(2, dtype=D), mask=torch.tensor([True, False]))
+    assert gp.capacity == 6 and gp.size.tolist() == [4, 0]
+    assert torch.equal(gp.L[0, 4:, 4:], torch.eye(2, dtype=D)) and torch.equal(gp.L[1], torch.eye(6, dtype=D))
+    gp.reset()
+    assert torch.equal(gp.L, torch.eye(gp.capacity, dtype=D).expand(2, -1, -1))
+
+
 @pytest.mark.parametrize("capacity", [0, 1.5, -1])
 def test_a_capacity_that_is_not_a_positive_integer_is_refused(capacity):
     with pytest.raises(ValueError, match=rf"^capacity must be a positive integer, got {capacity}$"):

@@ -494,12 +494,17 @@ def test_resume_goes_back_to_the_previous_checkpoint_when_the_file_lost_rows(tmp
     assert folder.load_checkpoint()["episodes_done"] == 21
     assert torch.load(folder.file(runner.PREVIOUS), weights_only=True)["episodes_done"] == 18
     path.write_text("".join(path.read_text().splitlines(keepends=True)[:-2]))   # 19 of the 21 covered
+    by = ["seed", "episode"]
+    kept = folder.episodes().query("episode <= 6").sort_values(by).reset_index(drop=True)   # what prev covers
     capsys.readouterr()
     again = runner.resume(folder, runner.resumable_config(folder), progress=False)
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "(2 missing, 0 repeated): continuing from checkpoint.prev.pt (18 episodes done)" in err[0]
+    assert len(err) == 1 and err[0].endswith("(2 missing, 0 repeated): continuing from checkpoint.prev.pt (18 episodes "
+                                             "done), the episodes after it run again")
     timing = list(TIMING_COLUMNS)
     pd.testing.assert_frame_equal(again.drop(columns=timing), reference.drop(columns=timing))
+    # the episodes prev covers are not run again: their rows, times included, are the file's
+    pd.testing.assert_frame_equal(again.query("episode <= 6").sort_values(by).reset_index(drop=True), kept)
 
     folder, path = interrupted("cut")
     path.write_text("".join(path.read_text().splitlines(keepends=True)[:-5]))   # 16: fewer than prev's 18

@@ -32,6 +32,12 @@ def test_atomic_write_names_the_path_on_an_oserror_and_leaves_the_file_as_it_was
     assert exc.value.filename == str(path)
     assert path.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["f.txt"]
 
+    def refused(f):
+        raise PermissionError("denied by a test")          # no errno, no strerror: its text stands in
+    with pytest.raises(PermissionError) as exc:
+        atomic_write(path, refused)
+    assert (exc.value.strerror, exc.value.filename) == ("denied by a test", str(path))
+
 
 def test_interrupted_exit_code_and_message():
     err = runner.Interrupted(15, None, 7)
@@ -532,7 +538,7 @@ def test_lengthen_by_budget(tmp_path):
 
 def test_lengthen_refuses_anything_shorter(tmp_path):
     folder, config = recorded_run(tmp_path, env_steps=100, episodes=5)
-    for lengths, words in [(dict(episodes=4), "--episodes 4 is fewer than the run's 5"),
+    for lengths, words in [(dict(episodes=4), "^--episodes 4 is fewer than the run's 5: a run can only be lengthened$"),
                            (dict(env_steps=99), "--env-steps 99 is a smaller budget than the run's 100"),
                            (dict(gamma=0.5, seeds=[1]), "only be lengthened in episodes, env_steps, not gamma, seeds"),
                            (dict(episodes=0), "episodes")]:
