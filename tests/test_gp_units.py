@@ -119,6 +119,7 @@ def test_a_new_gps_factor_is_the_identity_and_its_unused_rows_stay_so():
         gp.add(torch.tensor([[0.3 * t], [0.4]], dtype=D), torch.zeros(2, dtype=D), mask=torch.tensor([True, False]))
     assert gp.capacity == 6 and gp.size.tolist() == [4, 0]
     assert torch.equal(gp.L[0, 4:, 4:], torch.eye(2, dtype=D)) and torch.equal(gp.L[1], torch.eye(6, dtype=D))
+    assert not gp.L[0, 4:, :4].any() and not gp.L[0, :4, 4:].any()
     gp.reset()
     assert torch.equal(gp.L, torch.eye(gp.capacity, dtype=D).expand(2, -1, -1))
 

@@ -33,7 +33,8 @@ def test_an_agent_is_found_by_its_name_and_an_unknown_one_refused_naming_every_a
 
 
 def test_a_domains_own_agent_runs_only_on_that_domains_envs():
-    assert agent_class("twap", "liquidation").__name__ and agent_class("twap").__name__
+    twap = domain("liquidation").baseline("twap")
+    assert agent_class("twap", "liquidation") is twap and agent_class("twap") is twap
     with pytest.raises(ValueError) as refused:
         agent_class("twap", "square")
     assert str(refused.value) == "twap is a baseline of the liquidation domain: use --env liquidation"
@@ -96,7 +97,7 @@ def test_run_hands_the_command_its_arguments_or_the_processs(monkeypatch):
     assert run("fake", ("--a", "1")) == 7 and got == [["--a", "1"]]
     monkeypatch.setattr(sys, "argv", ["fake.py", "--b", "2"])
     assert run("fake") == 7 and got[-1] == ["--b", "2"]
-    assert run("train", ["--help"]) == 0                       # answered before train's imports
+    assert run("train", ["--help"]) == 0                       # (answered by commands.early: test_commands)
 
 
 def test_guarded_ends_a_bad_request_with_2_and_ctrl_c_with_130_in_one_line(capsys):

@@ -1,6 +1,7 @@
 """The reproduce command's ``main`` with the sweep's and the report's work stubbed: what each of
 --sweep-file, --plan, --report and a run hands on, in which order, and what it prints. (Real smoke
 reproductions, their reports and publications: test_sweep and test_published.)"""
+import itertools
 import os
 from pathlib import Path
 
@@ -117,7 +118,7 @@ def test_a_report_needs_a_reproduction_and_is_published_when_asked(calls, tmp_pa
 
 
 def test_a_run_plans_runs_in_order_reports_and_publishes(calls, tmp_path, capsys, monkeypatch):
-    t = iter([100.0, 160.0])
+    t = itertools.chain([100.0, 160.0], itertools.repeat(160.0))     # any later reading: the end
     monkeypatch.setattr(reproduce.time, "perf_counter", lambda: next(t))
     out = tmp_path / "r"
     assert reproduce.main(["--out", str(out), "--workers", "3", "--experiments", "a-*", "--max-job-minutes", "5",

@@ -55,14 +55,19 @@ def test_a_finished_job_is_left_alone_and_its_folder_given_back(tmp_path, monkey
     assert free(folder)
 
 
-def test_a_begun_job_is_resumed_to_the_rows_of_one_run(tmp_path, capsys):
+def test_a_begun_job_is_resumed_to_the_rows_of_one_run_at_one_thread(tmp_path, capsys):
+    """Begun by an older version (its recorded config without ``threads``, which the runner then leaves
+    as it finds them): the job still runs at one thread."""
     sweep.run_job(tiny(), str(tmp_path / "whole"))
     begun = runner.RunFolder(tmp_path / "begun")
     begun.path.mkdir()
-    begun.write_json(runner.CONFIG, runner.recorded(tiny()))    # started, nothing run yet
+    older = runner.recorded(tiny())
+    del older["run"]["threads"]
+    begun.write_json(runner.CONFIG, older)                      # started, nothing run yet
     capsys.readouterr()
+    torch.set_num_threads(2)
     sweep.run_job(resolve_config(env="square", agent="random", seeds=[5], episodes=9), str(begun.path))
-    assert capsys.readouterr().err == ""
+    assert torch.get_num_threads() == 1 and capsys.readouterr().err == ""
     whole = runner.RunFolder(tmp_path / "whole").episodes()
     timing = list(TIMING_COLUMNS)
     assert begun.episodes().drop(columns=timing).equals(whole.drop(columns=timing))
