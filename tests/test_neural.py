@@ -70,7 +70,7 @@ def test_a_seed_below_the_clip_threshold_is_left_exactly_as_it_was():
 def test_a_frozen_seed_keeps_its_weights_and_adams_moments_exactly():
     """Seeds 0-2 learn together, then seed 1 finishes: through later updates of the others its
     network, its target and Adam's first and second moments stay bit for bit as they were.
-    (Adam's step count is one scalar per parameter tensor, shared by the seeds; a frozen seed never
+    (Adam's step count is one scalar, shared by the seeds; a frozen seed never
     steps again -- lengthening a run continues from before any seed stopped.)"""
     env, agent = build(resolve_config(seeds=[0, 1, 2], **dict(DQN_SMALL, learning_starts=4, batch_size=4)))
     td = env.reset()
@@ -82,14 +82,13 @@ def test_a_frozen_seed_keeps_its_weights_and_adams_moments_exactly():
         if t == 20:
             active[1] = False
             frozen = [x[1].clone() for x in agent.nets.state_dict().values()]
-            moments = [v[1].clone() for st in agent.optimizers[0].state.values() for k, v in st.items()
-                       if k in ("exp_avg", "exp_avg_sq")]
+            moments = [v[1].clone() for v in agent.optimizers[0].seed_tensors()]
         agent.observe(out, active)
     now = [x[1] for x in agent.nets.state_dict().values()]
     assert len(now) == 12 and all(torch.equal(a, b) for a, b in zip(now, frozen))  # network and target
-    now_moments = [v[1] for st in agent.optimizers[0].state.values() for k, v in st.items()
-                   if k in ("exp_avg", "exp_avg_sq")]
+    now_moments = [v[1] for v in agent.optimizers[0].seed_tensors()]
     assert len(moments) == 12 and all(torch.equal(a, b) for a, b in zip(now_moments, moments))
+    assert all(bool(v.any()) for v in moments)  # it had learned: its moments are not the zeros they start as
     assert int(agent.updates[1]) < int(agent.updates[0])  # the others went on learning
 
 

@@ -38,7 +38,7 @@ from torchrl.modules import MLP
 from ..config import setting
 from ..rng import SeedStreams, stream_id
 from ..tuning import LogUniform, Uniform
-from .neural import SeedBatchedLearner, SeedStack, Target, build_per_seed, seed_mean
+from .neural import SeedAdam, SeedBatchedLearner, SeedStack, Target, build_per_seed, seed_mean
 
 
 @dataclass
@@ -142,9 +142,9 @@ class DDPG(SeedBatchedLearner):
         self.nets = nn.ModuleDict(dict(actor=actor, critic=critic, target_actor=Target(actor),
                                        target_critic=Target(critic)))
         self.actor, self.critic = actor, critic
-        self.actor_optim = torch.optim.Adam(actor.parameters(), lr=cfg.actor_lr, foreach=True)
+        self.actor_optim = SeedAdam(actor.mlp, lr=cfg.actor_lr)
         self.critic_params = list(critic.parameters())
-        self.critic_optim = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr, foreach=True)
+        self.critic_optim = SeedAdam(critic, lr=cfg.critic_lr)
         self.optimizers = [self.actor_optim, self.critic_optim]
         self.noise = torch.zeros(len(self.seeds), act_dim)
         self.noise_rng = SeedStreams(self.seeds, stream_id("ddpg.ou"))

@@ -36,7 +36,8 @@ from torchrl.modules import MLP
 from ..config import setting
 from ..rng import SeedStreams, stream_id
 from ..tuning import Choice, IntRange, LogUniform, OfBudget, Uniform
-from .neural import SeedBatchedLearner, SeedStack, Target, build_per_seed, clip_grad_norm_per_seed, seed_mean
+from .neural import (SeedAdam, SeedBatchedLearner, SeedStack, Target, build_per_seed, clip_grad_norm_per_seed,
+                     seed_mean)
 
 
 @dataclass
@@ -95,7 +96,7 @@ class DQN(SeedBatchedLearner):
         self.nets = nn.ModuleDict(dict(qnet=qnet, target=Target(qnet)))
         self.qnet, self.target = qnet, self.nets["target"]
         self.params = list(qnet.parameters())
-        self.optimizers = [torch.optim.Adam(self.params, lr=cfg.lr, foreach=True)]
+        self.optimizers = [SeedAdam(qnet, lr=cfg.lr)]
         self.explore_rng = SeedStreams(self.seeds, stream_id("dqn.explore"))
 
     @property

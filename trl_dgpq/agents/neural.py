@@ -22,7 +22,10 @@ What would couple seeds is done here instead:
   TorchRL's ``EGreedyModule``, OU module and samplers draw from;
 - initial weights: each seed's networks are built under its own torch generator
   (the same weights the earlier one-learner-per-seed code drew);
-- Adam is elementwise, so Adam on stacked parameters is per-seed Adam (tested).
+- Adam is elementwise, so Adam on stacked parameters is per-seed Adam (tested). Each
+  stack's parameters are views of one flat buffer (``FlatParams``) of whole cache lines,
+  so torch's fused Adam, one pass per element, never meets its scalar tail, whose
+  rounding differs from its vectors': a seed's result is the same in any batch.
 
 Seeds in a batch move in lock-step: the collector only ever drops finished seeds,
 so every active seed has taken the same number of steps, and one step counter
@@ -73,6 +76,81 @@ class SeedLinear(nn.Module):
         return y.view(*x.shape[:-1], out)
 
 
+# floats in a 64-byte cache line: torch's fused Adam on CPU splits its work at whole lines and
+# runs whole vectors (8 floats on this CPU, 16 with AVX-512) in each, so a buffer of whole lines
+# never meets the scalar tail, whose rounding differs: unpadded, a seed's result would depend on
+# how many seeds share the buffer (tests/test_seed_adam.py)
+LINE = 16
+
+
+class FlatParams:
+    """The parameters of ``module`` made views of one buffer ``data``, each a contiguous block
+    (S, ...) starting on a cache line, the buffer padded with zeros to whole lines; their
+    gradients views of one buffer ``grad`` laid out alike, which backward adds into (a
+    defined gradient is accumulated in place, never replaced). ``param`` is the buffer as
+    one parameter for the optimiser, so Adam and the target updates are one pass each over
+    every seed's parameters. Padding stays zero: its gradient is zero, so Adam never moves it."""
+
+    def __init__(self, module: nn.Module, grad: bool = True):
+        named = list(module.named_parameters())
+        self.spans, end = [], 0
+        for _, p in named:
+            self.spans.append((end, p.shape))
+            end += -(-p.numel() // LINE) * LINE
+        self.data = torch.zeros(end)
+        self.grad = torch.zeros(end) if grad else None
+        for (name, p), (offset, shape) in zip(named, self.spans):
+            owner, _, leaf = name.rpartition(".")
+            shared = nn.Parameter(self.view(self.data, offset, shape), requires_grad=p.requires_grad)
+            shared.detach().copy_(p.detach())
+            if grad:
+                shared.grad = self.view(self.grad, offset, shape)
+            setattr(module.get_submodule(owner), leaf, shared)
+        self.param = nn.Parameter(self.data, requires_grad=grad)
+        self.param.grad = self.grad
+
+    @staticmethod
+    def view(buffer: torch.Tensor, offset: int, shape: torch.Size) -> torch.Tensor:
+        return buffer[offset:offset + shape.numel()].view(shape)
+
+    def pack(self, tensors: Sequence[torch.Tensor]) -> torch.Tensor:
+        """Tensors shaped as the parameters, in their order, as one buffer (padding zero)."""
+        out = torch.zeros_like(self.data)
+        for (offset, shape), t in zip(self.spans, tensors):
+            self.view(out, offset, shape).copy_(t)
+        return out
+
+
+class SeedAdam(torch.optim.Adam):
+    """Adam on a stack's flat buffer, fused: one pass per element (3.8x faster than the
+    foreach Adam's passes on 10 x 67,344 floats here). ``zero_grad`` zeroes the buffer the
+    layers' gradients are views of (it must stay theirs, never be set to None)."""
+
+    def __init__(self, stack: "SeedStack", lr: float):
+        super().__init__([stack.flat.param], lr=lr, fused=True)
+        self.flat = stack.flat
+
+    def zero_grad(self, set_to_none: bool = True) -> None:
+        self.flat.grad.zero_()
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        group = state_dict["param_groups"][0]
+        if len(group["params"]) != 1:  # an earlier version's Adam: a state per layer tensor, packed as ours
+            if len(group["params"]) != len(self.flat.spans):
+                raise ValueError(f"the optimiser state holds {len(group['params'])} tensors, the network "
+                                 f"{len(self.flat.spans)}: it is another network's")
+            per = [state_dict["state"][i] for i in group["params"]] if state_dict["state"] else []
+            state = {0: {"step": per[0]["step"].clone(),
+                         **{k: self.flat.pack([s[k] for s in per]) for k in ("exp_avg", "exp_avg_sq")}}} if per else {}
+            state_dict = {"state": state, "param_groups": [{**group, "params": [0], "foreach": None, "fused": True}]}
+        super().load_state_dict(state_dict)
+
+    def seed_tensors(self) -> List[torch.Tensor]:
+        """Adam's moments as views shaped as the parameters (S, ...), for ``keep_rows``."""
+        return [self.flat.view(state[k], offset, shape) for state in self.state.values()
+                for k in ("exp_avg", "exp_avg_sq") for offset, shape in self.flat.spans]
+
+
 class SeedStack(nn.Module):
     """One network per seed (``nets``, all of one architecture), run as one: inputs
     (S, ..., features) give (S, ..., out). The architecture's ``nn.Linear`` layers become
@@ -94,6 +172,7 @@ class SeedStack(nn.Module):
             elif name and any(True for _ in module.parameters(recurse=False)):
                 raise TypeError(f"SeedStack stacks nn.Linear layers only, not {type(module).__name__}")
         self.num_seeds = len(nets)
+        self.flat = FlatParams(self.net)
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
         if inputs[0].shape[0] != self.num_seeds:
@@ -145,9 +224,13 @@ class Target(nn.Module):
 
     def __init__(self, net: nn.Module):
         super().__init__()
-        self.net = copy.deepcopy(net).requires_grad_(False)
+        self.net = copy.deepcopy(net)
+        stacks = [(m, o) for m, o in zip(self.net.modules(), net.modules()) if isinstance(m, SeedStack)]
+        for stack, _ in stacks:  # a deep copy's parameters are copies, no longer views of its buffer
+            stack.flat = FlatParams(stack.net, grad=False)
+        self.net.requires_grad_(False)
         # (plain lists, not submodules: the online net is saved once, as itself)
-        self._pairs = (list(self.net.parameters()), list(net.parameters()))
+        self._pairs = ([m.flat.data for m, _ in stacks], [o.flat.data for _, o in stacks])
 
     def forward(self, *inputs):
         return self.net(*inputs)
@@ -160,10 +243,6 @@ class Target(nn.Module):
     def soft_update_(self, tau: float) -> None:
         """target <- target + tau (online - target), as TorchRL's ``SoftUpdate``."""
         torch._foreach_lerp_(*self._pairs, tau)
-
-
-def optimizer_tensors(optim: torch.optim.Optimizer) -> List[torch.Tensor]:
-    return [v for state in optim.state.values() for v in state.values() if torch.is_tensor(v)]
 
 
 class SeedReplay:
@@ -236,7 +315,7 @@ class SeedBatchedLearner:
     def learned_tensors(self) -> List[torch.Tensor]:
         """Everything an update changes: the networks and targets, the optimisers' state."""
         return list(self.nets.state_dict(keep_vars=True).values()) + [
-            t for o in self.optimizers for t in optimizer_tensors(o)]
+            t for o in self.optimizers for t in o.seed_tensors()]
 
     def observe(self, td, active=None) -> None:
         S = len(self.seeds)
