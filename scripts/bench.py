@@ -11,6 +11,7 @@
     python scripts/bench.py threads # ms per seed-step at 1 and 2 torch threads, quiet and loaded
     python scripts/bench.py step-parts  # a learning step: the update and the work around it
     python scripts/bench.py bound   # neural learners: ms per seed-step against their arithmetic bound
+    python scripts/bench.py same-curves --before OLD/* --after NEW/*   # two versions' curves equal in distribution?
     python scripts/bench.py quick   # reproduce --scale quick: its wall time, time-left guide and estimate
 """
 from __future__ import annotations
@@ -566,6 +567,12 @@ def main(argv=None):
     qk.add_argument("--publication", default=None, metavar="DIR",
                     help="with --replay: estimate from this publication (default: the committed results/report)")
     qk.set_defaults(fn=lambda a: _quick().bench_quick(a))
+    sc = sub.add_parser("same-curves", help="two versions' runs of the same settings and seeds: curves equal "
+                                             "in distribution? (IQMs, P(after better), each with its 95 % CI)")
+    sc.add_argument("--before", nargs="+", required=True, metavar="RUN")
+    sc.add_argument("--after", nargs="+", required=True, metavar="RUN", help="paired with --before by folder name")
+    sc.add_argument("--out", default=None)
+    sc.set_defaults(fn=lambda a: _neural().bench_same_curves(a))
     sp = sub.add_parser("step-parts", help="a learning step of DDPG and DQN: the update and the work around it")
     sp.add_argument("--threads", type=int, default=1)
     sp.add_argument("--warmup", type=int, default=1_100)

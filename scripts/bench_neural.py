@@ -334,3 +334,59 @@ def bench_bound(args) -> None:
     out.write_text(json.dumps(dict(meta=dict(threads=args.threads, load_average_end=os.getloadavg()),
                                    results=results), indent=1))
     print(f"load average at end {os.getloadavg()}; wrote {out}")
+
+
+def seed_means(df, column: str) -> dict:
+    """Per seed: the mean of ``column`` over all its episodes (the curve's area per episode) and
+    over the second half of its episodes."""
+    half = df.episode > df.groupby("seed").episode.transform("max") / 2
+    return {"whole run": df.groupby("seed")[column].mean(), "second half": df[half].groupby("seed")[column].mean()}
+
+
+def bench_same_curves(args) -> None:
+    """Runs of the same settings and seeds by two versions of the code (``--before``, ``--after``,
+    paired by folder name): per learner and statistic, each version's IQM over seeds [95 % CI]
+    and P(after improves on before) [95 % CI] (rliable's). The rule, fixed before the runs:
+    the curves are equal in distribution (nothing shows otherwise) when every P's interval holds
+    0.5. Also each run's ms per seed-step (both versions run side by side, one core each)."""
+    import numpy as np
+
+    from trl_dgpq.analysis.runs import load_run
+    from trl_dgpq.analysis.stats import iqm, oriented, probability_of_improvement
+    from trl_dgpq.analysis.summary import ms_per_seed_step
+
+    before = {Path(f).name: f for f in args.before}
+    after = {Path(f).name: f for f in args.after}
+    if set(before) != set(after):
+        sys.exit(f"bench same-curves: --before and --after name other runs: {sorted(before)} against {sorted(after)}")
+    rows, holds = [], True
+    print(f"{'run':>17} {'statistic':>12} {'IQM before [95 % CI]':>30} {'IQM after [95 % CI]':>30} "
+          f"{'P(after better) [95 % CI]':>26} {'ms/seed-step before, after':>27}")
+    for name in sorted(before):
+        b, a = load_run(before[name]), load_run(after[name])
+        column, label = b.measure()
+        lower = b.domain.lower_is_better(b.env_id)
+        if sorted(b.df.seed.unique()) != sorted(a.df.seed.unique()):
+            sys.exit(f"bench same-curves: {name}: the two runs are on other seeds")
+        ms = (ms_per_seed_step(b.df), ms_per_seed_step(a.df))
+        mb, ma = seed_means(b.df, column), seed_means(a.df, column)
+        for stat in mb:
+            xb, xa = mb[stat].sort_index().to_numpy(), ma[stat].sort_index().to_numpy()
+            p = probability_of_improvement(oriented(xa, lower), oriented(xb, lower))
+            holds &= p[1] <= 0.5 <= p[2]
+            ib, ia = iqm(xb), iqm(xa)
+            rows.append(dict(run=name, measure=label, lower_is_better=bool(lower), statistic=stat,
+                             iqm_before=ib, iqm_after=ia, p_after_better=p, ms_per_seed_step=ms,
+                             seeds_before=xb.tolist(), seeds_after=xa.tolist()))
+            print(f"{name:>17} {stat:>12} {'{:.4g} [{:.4g}, {:.4g}]'.format(*ib):>30} "
+                  f"{'{:.4g} [{:.4g}, {:.4g}]'.format(*ia):>30} {'{:.2f} [{:.2f}, {:.2f}]'.format(*p):>26} "
+                  f"{ms[0]:>13.3f} {ms[1]:>7.3f} ({ms[0] / ms[1]:.2f}x)", flush=True)
+    verdict = ("equal in distribution: every interval holds 0.5" if holds
+               else "NOT shown equal: an interval excludes 0.5")
+    print(f"measure: each run's domain measure ({', '.join(sorted({r['measure'] for r in rows}))}); "
+          f"{verdict}")
+    out = Path(args.out or "bench-same-curves.json")
+    out.write_text(json.dumps(dict(meta=dict(before=args.before, after=args.after, load_average_end=os.getloadavg(),
+                                             verdict=verdict, seeds=int(np.max([len(r["seeds_after"]) for r in rows]))),
+                                   results=rows), indent=1))
+    print(f"wrote {out}")
