@@ -242,8 +242,9 @@ def test_every_spec_is_made_on_the_envs_device():
 
 
 class ThirdsEnv(gymnasium.Env):
-    """Rewards and observations float32 cannot hold: 0.1 + action, and thirds."""
-    observation_space = gymnasium.spaces.Box(0.0, 1.0, (2,), np.float64)
+    """Rewards and observations float32 cannot hold, as numpy float64: 0.1 + action, and thirds
+    (its space says float32, as many envs' do while they return float64 arrays)."""
+    observation_space = gymnasium.spaces.Box(0.0, 1.0, (2,), np.float32)
     action_space = gymnasium.spaces.Discrete(2)
 
     def __init__(self, **kwargs):  # TorchRL's GymEnv passes frameskip=1
@@ -256,13 +257,13 @@ class ThirdsEnv(gymnasium.Env):
 
     def step(self, action):
         self.t += 1
-        return np.array([self.t / 3, 1 / 3]), 0.1 + action, self.t == 3, False, {}
+        return np.array([self.t / 3, 1 / 3]), np.float64(0.1 + action), self.t == 3, False, {}
 
 
 def test_a_step_converts_as_torchrls_gymenv_reward_float32_observation_its_spaces_dtype():
     """Each seed is stepped through gymnasium's own step with GymEnv's conversions: the reward to
-    its spec's float32 (0.1 becomes 0.100000001...), the observation to its space's float64 (a third
-    kept to the last bit), terminated where the env says, never truncated."""
+    its spec's float32 (0.1 becomes 0.100000001...), the observation to its space's float32 (a
+    third as float32 holds it), terminated where the env says, never truncated."""
     gymnasium.register("ThirdsTest-v0", entry_point=ThirdsEnv, max_episode_steps=50)
     try:
         env = gym_env("ThirdsTest-v0")([0, 1], observations="raw")
@@ -272,7 +273,7 @@ def test_a_step_converts_as_torchrls_gymenv_reward_float32_observation_its_space
             out, td = env.step_and_maybe_reset(td)
             nxt = out["next"]
             assert nxt["reward"][:, 0].tolist() == [float(np.float32(0.1)), float(np.float32(1.1))]
-            assert nxt["observation"].tolist() == [[t / 3, 1 / 3]] * 2
+            assert nxt["observation"].tolist() == [[float(np.float32(t / 3)), float(np.float32(1 / 3))]] * 2
             assert nxt["terminated"].flatten().tolist() == [t == 3] * 2 and not nxt["truncated"].any()
         env.close()
     finally:

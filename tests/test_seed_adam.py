@@ -79,6 +79,7 @@ def test_fused_adam_on_the_buffer_is_torchs_adam_per_tensor():
     moments to float32 rounding (the fused arithmetic rounds its own way), padding left at zero."""
     stack, plain = stack_and_copies([0, 1, 2])
     optim = SeedAdam(stack, lr=0.05)
+    assert optim.param_groups[0]["fused"]  # the one-pass kernel: what the buffer is for
     ref = [torch.optim.Adam(ps, lr=0.05, foreach=False) for ps in plain]
     g = torch.Generator().manual_seed(2)
     for _ in range(3):
@@ -139,6 +140,7 @@ def test_a_target_has_its_own_buffer_follows_by_copies_and_soft_updates_and_take
     stack, _ = stack_and_copies([0, 1])
     target = Target(stack)
     assert target.net.flat.data.data_ptr() != stack.flat.data.data_ptr()
+    assert target.net.flat.grad is None and not target.net.flat.param.requires_grad  # no gradient buffer kept
     assert all(not p.requires_grad and p.grad is None for p in target.parameters())
     for p, q in zip(target.parameters(), stack.parameters()):
         assert p.untyped_storage().data_ptr() == target.net.flat.data.untyped_storage().data_ptr()
@@ -178,3 +180,14 @@ def test_an_earlier_versions_adam_state_per_tensor_is_packed_into_the_buffer():
     assert float(state["step"]) == 3.0
     with pytest.raises(ValueError, match="3 tensors, the network 4"):
         optim.load_state_dict({"state": {}, "param_groups": [{**saved["param_groups"][0], "params": [0, 1, 2]}]})
+
+
+def test_an_earlier_versions_adam_that_never_stepped_loads_empty():
+    stack, _ = stack_and_copies([0, 1])
+    old = torch.optim.Adam(list(stack.parameters()), lr=0.02, foreach=True)
+    optim = SeedAdam(stack, lr=0.02)
+    optim.load_state_dict(old.state_dict())
+    assert not optim.state and optim.param_groups[0]["fused"]
+    optim.step()
+    (state,) = optim.state.values()
+    assert float(state["step"]) == 1.0
