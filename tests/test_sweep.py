@@ -983,7 +983,7 @@ def test_sweep_and_reproduce_end_a_signal_with_one_line_and_its_code(tmp_path, m
     monkeypatch.setattr(sweep, "start_forkserver", started.append)
     assert reproduce.main(["--scale", "smoke", "--only", "f16", "--out", str(tmp_path / "r"), "--workers", "1"]) == code
     assert capsys.readouterr().err == f"interrupted by {name}: continue with the same command\n"
-    assert given[0]["prior"] == reproduce.GUIDE_PRIOR_S == 240.0        # the guide's trust in the estimate
+    assert given[0]["prior"] == reproduce.GUIDE_PRIOR_S == 120.0        # the guide's trust in the estimate
     # the workers' forkserver started before the plan, with the planned jobs' modules
     assert started == [sweep.job_modules(reproduce.experiments("smoke", ["f16"]).values())]
     assert "trl_dgpq.envs.f16.env" in started[0] and "trl_dgpq.agents.dqn" in started[0]
@@ -993,7 +993,7 @@ def test_sweep_and_reproduce_end_a_signal_with_one_line_and_its_code(tmp_path, m
 
 def test_the_guides_prior_is_seconds_only_where_something_is_estimated():
     """With no experiment estimated (no publication), the guide's costs are seed-steps: no prior."""
-    assert reproduce.guide_prior([("a", None, ""), ("b", 12.0, "measured")]) == 240.0
+    assert reproduce.guide_prior([("a", None, ""), ("b", 12.0, "measured")]) == 120.0
     assert reproduce.guide_prior([("a", None, ""), ("b", None, "")]) == 0.0 == reproduce.guide_prior([])
 
 

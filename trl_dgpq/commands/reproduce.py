@@ -381,8 +381,11 @@ PUBLICATION = Path(__file__).resolve().parents[2] / "results" / "report"   # the
 # reports with 0 s, 107 with 60, 114 with 120 and 119 with 240. Fitted on that one run: the next,
 # run with it, was within 25 % at 119 of 119, but replayed it is so with any prior from 0 to 480 s
 # (its first jobs ran near their estimates). Beside a full-scale run's hours of jobs it fades after
-# the first few.
-GUIDE_PRIOR_S = 240.0
+# the first few. On a host ~3x faster per step than the publication's (2026-11-29, 14:24,
+# bench-quick-1129g: the sweep 1.8 minutes), 240 s outweighed every job run and the guide was
+# within 25 % at 52 of 119 reports; replayed there, 92 with 0 s, 117 with 30, 114 with 60, 111 with
+# 120. 120 s is the best worst case of the three runs (114, 119 and 111 of 119).
+GUIDE_PRIOR_S = 120.0
 
 
 def guide_prior(found: list) -> float:
