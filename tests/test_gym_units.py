@@ -243,7 +243,8 @@ def test_every_spec_is_made_on_the_envs_device():
 
 class ThirdsEnv(gymnasium.Env):
     """Rewards and observations float32 cannot hold, as numpy float64: 0.1 + action, and thirds
-    (its space says float32, as many envs' do while they return float64 arrays)."""
+    (its space says float32, as many envs' do while they return float64 arrays), its observation a
+    reversed view."""
     observation_space = gymnasium.spaces.Box(0.0, 1.0, (2,), np.float32)
     action_space = gymnasium.spaces.Discrete(2)
 
@@ -257,7 +258,8 @@ class ThirdsEnv(gymnasium.Env):
 
     def step(self, action):
         self.t += 1
-        return np.array([self.t / 3, 1 / 3]), np.float64(0.1 + action), self.t == 3, False, {}
+        flipped = np.array([1 / 3, self.t / 3])[::-1]  # a view with a negative stride, as some envs return
+        return flipped, np.float64(0.1 + action), self.t == 3, False, {}
 
 
 def test_a_step_converts_as_torchrls_gymenv_reward_float32_observation_its_spaces_dtype():

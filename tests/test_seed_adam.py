@@ -108,13 +108,24 @@ def test_fused_adam_on_the_buffer_is_torchs_adam_per_tensor():
     assert not stack.flat.data[~used].any()
 
 
-@pytest.mark.parametrize("sizes", [(3, 1), (2, 3), (5, 2)])
-def test_a_seed_alone_is_the_seed_in_any_batch_bit_for_bit(sizes):
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("sizes", [(3, 1), (2, 3), (5, 2), (40, 30)])
+def test_a_seed_alone_is_the_seed_in_any_batch_bit_for_bit(sizes, threads):
     """Fused Adam's vectorised and scalar parts round differently (here, vectors of 8 floats): a
     seed's 4 floats ((3, 1): weight and bias) alone fall wholly in the scalar part, in a batch of
     2 in a vector. Blocks of whole cache lines keep every element in the vectorised part: seed i's
     weights after 5 steps are the same bits alone and in batches of 2, 3, 5 and 8 (unpadded
-    blocks fail this for (3, 1) and (5, 2))."""
+    blocks fail this for (3, 1) and (5, 2)). With 2 threads the kernel splits its work between them,
+    at whole lines."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        run_seed_batches(sizes)
+    finally:
+        torch.set_num_threads(before)
+
+
+def run_seed_batches(sizes):
     n_in, n_out = sizes
     g = torch.Generator().manual_seed(3)
     grads = {i: [torch.randn(n_in, n_out, generator=g), torch.randn(n_out, generator=g)] for i in range(8)}
@@ -191,3 +202,43 @@ def test_an_earlier_versions_adam_that_never_stepped_loads_empty():
     optim.step()
     (state,) = optim.state.values()
     assert float(state["step"]) == 1.0
+
+
+@pytest.mark.parametrize("cut", ["Module.zero_grad", "double", "load_state_dict(assign=True)"])
+def test_a_step_refuses_once_the_parameters_are_no_longer_views_of_the_buffer(cut):
+    """Each of these replaces the parameters or their gradients with tensors of their own: Adam would
+    step a buffer nothing reads any more, and learning would stop without a word."""
+    stack, _ = stack_and_copies([0, 1])
+    optim = SeedAdam(stack, lr=0.1)
+    x = torch.randn(2, 4, 3, generator=torch.Generator().manual_seed(5))
+    stack(x).sum().backward()
+    optim.step()  # as built: fine
+    if cut == "Module.zero_grad":
+        stack.zero_grad()  # sets every .grad to None
+    elif cut == "double":
+        stack.double()
+        x = x.double()
+    else:
+        stack.load_state_dict({k: v.clone() for k, v in stack.state_dict().items()}, assign=True)
+    stack(x).sum().backward()
+    with pytest.raises(RuntimeError, match="were replaced"):
+        optim.step()
+
+
+def test_a_target_refuses_a_network_with_parameters_outside_its_stacks():
+    stack, _ = stack_and_copies([0, 1])
+    net = nn.ModuleList([stack, nn.Linear(2, 2)])
+    with pytest.raises(TypeError, match="all in SeedStacks"):
+        Target(net)
+
+
+def test_an_earlier_versions_state_of_some_tensors_only_is_refused():
+    stack, _ = stack_and_copies([0, 1])
+    old = torch.optim.Adam(list(stack.parameters()), lr=0.02, foreach=True)
+    for p in stack.parameters():
+        p.grad.fill_(1.0)
+    old.step()
+    saved = old.state_dict()
+    del saved["state"][2]
+    with pytest.raises(ValueError, match="some of the network's tensors"):
+        SeedAdam(stack, lr=0.02).load_state_dict(saved)

@@ -166,6 +166,9 @@ class GymSeedEnv(SeedBatchedEnv):
             raise
         self.started = torch.zeros(self.num_seeds, dtype=torch.bool)
         self.raw = torch.zeros(self.num_seeds, self.low.numel(), dtype=torch.float64)  # gymnasium's observations
+        # what GymEnv._step converted a step's observation and reward to (_transition steps gymnasium itself)
+        self.obs_dtype = self.envs[0].observation_spec["observation"].dtype
+        self.reward_dtype = self.envs[0].reward_spec.dtype
 
     @classmethod
     def _specs(cls, cfg, S, device):
@@ -213,14 +216,13 @@ class GymSeedEnv(SeedBatchedEnv):
         reward = torch.zeros(S, dtype=torch.float64)
         terminated = torch.zeros(S, dtype=torch.bool)
         truncated = torch.zeros(S, dtype=torch.bool)  # an env's own cap (gymnasium's TimeLimit is ours)
-        obs_dtype, reward_dtype = self.envs[0].observation_spec["observation"].dtype, self.envs[0].reward_spec.dtype
         for i, (env, a) in enumerate(zip(self.envs, action.tolist())):
             # gymnasium's own step, with GymEnv._step's conversions (observation and reward
             # to their specs' dtypes): our step already checked the action, and GymEnv's
             # TensorDict in and out cost ~10x CartPole's physics (a third of DQN's seed-step)
             obs, r, term, trunc, _ = env._env.step(a)
-            self.raw[i] = torch.as_tensor(obs, dtype=obs_dtype)
-            reward[i] = torch.as_tensor(r, dtype=reward_dtype).item()
+            self.raw[i] = torch.as_tensor(np.ascontiguousarray(obs), dtype=self.obs_dtype)  # (a flipped view too)
+            reward[i] = torch.as_tensor(r, dtype=self.reward_dtype).item()
             terminated[i], truncated[i] = bool(term), bool(trunc)
         return self._td(observation=self.observed()), reward, terminated, truncated
 

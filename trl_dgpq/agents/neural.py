@@ -97,8 +97,10 @@ class FlatParams:
         for _, p in named:
             self.spans.append((end, p.shape))
             end += -(-p.numel() // LINE) * LINE
-        self.data = torch.zeros(end)
-        self.grad = torch.zeros(end) if grad else None
+        like = dict(dtype=named[0][1].dtype, device=named[0][1].device)  # the parameters' own, never cast
+        self.data = torch.zeros(end, **like)
+        self.grad = torch.zeros(end, **like) if grad else None
+        self.module = module
         for (name, p), (offset, shape) in zip(named, self.spans):
             owner, _, leaf = name.rpartition(".")
             shared = nn.Parameter(self.view(self.data, offset, shape), requires_grad=p.requires_grad)
@@ -113,6 +115,19 @@ class FlatParams:
     def view(buffer: torch.Tensor, offset: int, shape: torch.Size) -> torch.Tensor:
         return buffer[offset:offset + shape.numel()].view(shape)
 
+    def check(self) -> None:
+        """Refuse to go on once a parameter or its gradient is no longer a view of the buffers
+        (``Module.zero_grad()``, ``.to()``, ``.double()`` or ``load_state_dict(assign=True)``
+        replace them): Adam would step a buffer nothing reads, and learning would stop silently."""
+        size = self.data.element_size()
+        for p, (offset, _) in zip(self.module.parameters(), self.spans):
+            grad_moved = self.grad is not None and (
+                p.grad is None or p.grad.data_ptr() != self.grad.data_ptr() + offset * size)
+            if grad_moved or p.data_ptr() != self.data.data_ptr() + offset * size:
+                raise RuntimeError("a stacked network's parameters or gradients were replaced (by Module.zero_grad, "
+                                   ".to(), a dtype cast or load_state_dict(assign=True)): they are views of its flat "
+                                   "buffers, which its optimiser steps; zero gradients with the optimiser's zero_grad")
+
     def pack(self, tensors: Sequence[torch.Tensor]) -> torch.Tensor:
         """Tensors shaped as the parameters, in their order, as one buffer (padding zero)."""
         out = torch.zeros_like(self.data)
@@ -124,7 +139,12 @@ class FlatParams:
 class SeedAdam(torch.optim.Adam):
     """Adam on a stack's flat buffer, fused: one pass per element (3.8x faster than the
     foreach Adam's passes on 10 x 67,344 floats here). ``zero_grad`` zeroes the buffer the
-    layers' gradients are views of (it must stay theirs, never be set to None)."""
+    layers' gradients are views of (it must stay theirs: ``set_to_none`` is ignored). Each
+    ``step`` first checks that they still are (``FlatParams.check``).
+
+    A checkpoint of an earlier version (torch's Adam per layer tensor) is packed into the
+    buffer on load; a run resumed from it goes on with the fused arithmetic, so its later
+    episodes are neither version's bit for bit (equal in distribution: docs/agents/neural.md)."""
 
     def __init__(self, stack: "SeedStack", lr: float):
         super().__init__([stack.flat.param], lr=lr, fused=True)
@@ -133,12 +153,19 @@ class SeedAdam(torch.optim.Adam):
     def zero_grad(self, set_to_none: bool = True) -> None:
         self.flat.grad.zero_()
 
+    def step(self, closure=None):
+        self.flat.check()
+        return super().step(closure)
+
     def load_state_dict(self, state_dict: dict) -> None:
         group = state_dict["param_groups"][0]
         if len(group["params"]) != 1:  # an earlier version's Adam: a state per layer tensor, packed as ours
             if len(group["params"]) != len(self.flat.spans):
                 raise ValueError(f"the optimiser state holds {len(group['params'])} tensors, the network "
                                  f"{len(self.flat.spans)}: it is another network's")
+            if state_dict["state"] and set(state_dict["state"]) != set(group["params"]):
+                raise ValueError("the optimiser state covers some of the network's tensors, not all: it cannot "
+                                 "be packed into one buffer")
             per = [state_dict["state"][i] for i in group["params"]] if state_dict["state"] else []
             state = {0: {"step": per[0]["step"].clone(),
                          **{k: self.flat.pack([s[k] for s in per]) for k in ("exp_avg", "exp_avg_sq")}}} if per else {}
@@ -226,6 +253,8 @@ class Target(nn.Module):
         super().__init__()
         self.net = copy.deepcopy(net)
         stacks = [(m, o) for m, o in zip(self.net.modules(), net.modules()) if isinstance(m, SeedStack)]
+        if sum(p.numel() for m, _ in stacks for p in m.parameters()) != sum(p.numel() for p in net.parameters()):
+            raise TypeError("a Target follows networks whose parameters are all in SeedStacks")
         for stack, _ in stacks:  # a deep copy's parameters are copies, no longer views of its buffer
             stack.flat = FlatParams(stack.net, grad=False)
         self.net.requires_grad_(False)
@@ -293,7 +322,7 @@ class SeedBatchedLearner:
     defines ``act``, ``update(batch)`` (one gradient step for all seeds) and
     ``wants_update()``; ``before_updates()`` if it has per-step bookkeeping."""
 
-    optimizers: List[torch.optim.Optimizer]
+    optimizers: List[SeedAdam]
     nets: nn.ModuleDict
 
     def __init__(self, seeds: Sequence[int], buffer_size: int):
