@@ -301,3 +301,30 @@ def test_memory_estimate_counts_every_action_dimension():
 def test_a_buffer_smaller_than_a_minibatch_is_refused_by_name():
     with pytest.raises(ValueError, match="batch_size <= buffer_size, got 64 and 10"):
         TD3Config(batch_size=64, buffer_size=10).cross_check()
+
+
+def test_an_earlier_versions_checkpoint_loads_each_optimisers_moments_into_its_buffer():
+    """A checkpoint written before the flat buffers holds torch's Adam per layer tensor, in the
+    order of actor.parameters() and critic.parameters(): loaded into a TD3, each moment lands
+    in its own tensor's rows, for the actor and for the twin critics."""
+    agent = TD3(TD3Config(policy_delay=1, **SMALL), [0, 1], 3, SYM)
+    agent.update(batch_of(8, S=2))
+    state = agent.state_dict()
+    g = torch.Generator().manual_seed(7)
+    old = []
+    for params in (list(agent.actor.parameters()), list(agent.critic.parameters())):
+        per = {i: dict(step=torch.tensor(1.0), exp_avg=torch.randn(p.shape, generator=g),
+                       exp_avg_sq=torch.rand(p.shape, generator=g)) for i, p in enumerate(params)}
+        old.append(dict(state=per, param_groups=[{**state["optimizers"][0]["param_groups"][0], "foreach": True,
+                                                  "fused": None, "params": list(range(len(params)))}]))
+    state["optimizers"] = old
+    again = TD3(TD3Config(policy_delay=1, **SMALL), [0, 1], 3, SYM)
+    again.load_state_dict(state)
+    for optim, per in zip(again.optimizers, old):
+        views = optim.seed_tensors()
+        n = len(per["state"])
+        assert len(views) == 2 * n
+        for i in range(n):
+            assert torch.equal(views[i], per["state"][i]["exp_avg"])
+            assert torch.equal(views[n + i], per["state"][i]["exp_avg_sq"])
+    again.update(batch_of(8, S=2))  # and it learns on from there
