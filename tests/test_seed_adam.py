@@ -221,14 +221,17 @@ def test_a_step_refuses_once_the_parameters_are_no_longer_views_of_the_buffer(cu
     else:
         stack.load_state_dict({k: v.clone() for k, v in stack.state_dict().items()}, assign=True)
     stack(x).sum().backward()
-    with pytest.raises(RuntimeError, match="were replaced"):
+    with pytest.raises(RuntimeError, match=r"^a stacked network's parameters or gradients were replaced \(by Module"
+                                           r"\.zero_grad, \.to\(\), a dtype cast or load_state_dict\(assign=True\)\): "
+                                           r"they are views of its flat buffers, which its optimiser steps; zero "
+                                           r"gradients with the optimiser's zero_grad$"):
         optim.step()
 
 
 def test_a_target_refuses_a_network_with_parameters_outside_its_stacks():
     stack, _ = stack_and_copies([0, 1])
     net = nn.ModuleList([stack, nn.Linear(2, 2)])
-    with pytest.raises(TypeError, match="all in SeedStacks"):
+    with pytest.raises(TypeError, match="^a Target follows networks whose parameters are all in SeedStacks$"):
         Target(net)
 
 
@@ -240,5 +243,6 @@ def test_an_earlier_versions_state_of_some_tensors_only_is_refused():
     old.step()
     saved = old.state_dict()
     del saved["state"][2]
-    with pytest.raises(ValueError, match="some of the network's tensors"):
+    with pytest.raises(ValueError, match="^the optimiser state covers some of the network's tensors, not all: it "
+                                         "cannot be packed into one buffer$"):
         SeedAdam(stack, lr=0.02).load_state_dict(saved)
