@@ -100,7 +100,7 @@ class FlatParams:
         like = dict(dtype=named[0][1].dtype, device=named[0][1].device)  # the parameters' own, never cast
         self.data = torch.zeros(end, **like)
         self.grad = torch.zeros(end, **like) if grad else None
-        self.module = module
+        self.placed = []  # (module holding it, its name, the parameter, its gradient view, where its data is)
         for (name, p), (offset, shape) in zip(named, self.spans):
             owner, _, leaf = name.rpartition(".")
             shared = nn.Parameter(self.view(self.data, offset, shape), requires_grad=p.requires_grad)
@@ -108,6 +108,7 @@ class FlatParams:
             if grad:
                 shared.grad = self.view(self.grad, offset, shape)
             setattr(module.get_submodule(owner), leaf, shared)
+            self.placed.append((module.get_submodule(owner), leaf, shared, shared.grad, shared.data_ptr()))
         self.param = nn.Parameter(self.data, requires_grad=grad)
         self.param.grad = self.grad
 
@@ -119,11 +120,8 @@ class FlatParams:
         """Refuse to go on once a parameter or its gradient is no longer a view of the buffers
         (``Module.zero_grad()``, ``.to()``, ``.double()`` or ``load_state_dict(assign=True)``
         replace them): Adam would step a buffer nothing reads, and learning would stop silently."""
-        size = self.data.element_size()
-        for p, (offset, _) in zip(self.module.parameters(), self.spans):
-            grad_moved = self.grad is not None and (
-                p.grad is None or p.grad.data_ptr() != self.grad.data_ptr() + offset * size)
-            if grad_moved or p.data_ptr() != self.data.data_ptr() + offset * size:
+        for owner, leaf, p, grad, where in self.placed:  # (~1 us a parameter: it runs at every step)
+            if owner._parameters[leaf] is not p or p.grad is not grad or p.data_ptr() != where:
                 raise RuntimeError("a stacked network's parameters or gradients were replaced (by Module.zero_grad, "
                                    ".to(), a dtype cast or load_state_dict(assign=True)): they are views of its flat "
                                    "buffers, which its optimiser steps; zero gradients with the optimiser's zero_grad")
