@@ -336,11 +336,13 @@ def bench_bound(args) -> None:
     print(f"load average at end {os.getloadavg()}; wrote {out}")
 
 
-def seed_means(df, column: str) -> dict:
+def whole_and_second_half(df, column: str) -> dict:
     """Per seed: the mean of ``column`` over all its episodes (the curve's area per episode) and
-    over the second half of its episodes."""
+    over the second half of its own episodes (not ``summary.seed_means``' one window for all
+    seeds: a run with an env-step budget ends each seed at its own episode)."""
+    from trl_dgpq.analysis.summary import seed_means
     half = df.episode > df.groupby("seed").episode.transform("max") / 2
-    return {"whole run": df.groupby("seed")[column].mean(), "second half": df[half].groupby("seed")[column].mean()}
+    return {"whole run": seed_means(df, column), "second half": df[half].groupby("seed")[column].mean()}
 
 
 def bench_same_curves(args) -> None:
@@ -349,10 +351,9 @@ def bench_same_curves(args) -> None:
     and P(after improves on before) [95 % CI] (rliable's). The rule, fixed before the runs:
     the curves are equal in distribution (nothing shows otherwise) when every P's interval holds
     0.5. Also each run's ms per seed-step (both versions run side by side, one core each)."""
-    import numpy as np
-
+    from trl_dgpq.analysis.claims import improvement_interval
     from trl_dgpq.analysis.runs import load_run
-    from trl_dgpq.analysis.stats import iqm, oriented, probability_of_improvement
+    from trl_dgpq.analysis.stats import iqm
     from trl_dgpq.analysis.summary import ms_per_seed_step
 
     before = {Path(f).name: f for f in args.before}
@@ -369,10 +370,11 @@ def bench_same_curves(args) -> None:
         if sorted(b.df.seed.unique()) != sorted(a.df.seed.unique()):
             sys.exit(f"bench same-curves: {name}: the two runs are on other seeds")
         ms = (ms_per_seed_step(b.df), ms_per_seed_step(a.df))
-        mb, ma = seed_means(b.df, column), seed_means(a.df, column)
+        mb, ma = whole_and_second_half(b.df, column), whole_and_second_half(a.df, column)
         for stat in mb:
             xb, xa = mb[stat].sort_index().to_numpy(), ma[stat].sort_index().to_numpy()
-            p = probability_of_improvement(oriented(xa, lower), oriented(xb, lower))
+            better = improvement_interval(xa, xb, lower)
+            p = (better.point, better.low, better.high)
             holds &= p[1] <= 0.5 <= p[2]
             ib, ia = iqm(xb), iqm(xa)
             rows.append(dict(run=name, measure=label, lower_is_better=bool(lower), statistic=stat,
@@ -387,6 +389,6 @@ def bench_same_curves(args) -> None:
           f"{verdict}")
     out = Path(args.out or "bench-same-curves.json")
     out.write_text(json.dumps(dict(meta=dict(before=args.before, after=args.after, load_average_end=os.getloadavg(),
-                                             verdict=verdict, seeds=int(np.max([len(r["seeds_after"]) for r in rows]))),
+                                             verdict=verdict, seeds=max(len(r["seeds_after"]) for r in rows)),
                                    results=rows), indent=1))
     print(f"wrote {out}")
