@@ -102,13 +102,14 @@ class FlatParams:
         self.grad = torch.zeros(end, **like) if grad else None
         self.placed = []  # (module holding it, its name, the parameter, its gradient view, where its data is)
         for (name, p), (offset, shape) in zip(named, self.spans):
-            owner, _, leaf = name.rpartition(".")
+            path, _, leaf = name.rpartition(".")
+            owner = module.get_submodule(path)
             shared = nn.Parameter(self.view(self.data, offset, shape), requires_grad=p.requires_grad)
             shared.detach().copy_(p.detach())
             if grad:
                 shared.grad = self.view(self.grad, offset, shape)
-            setattr(module.get_submodule(owner), leaf, shared)
-            self.placed.append((module.get_submodule(owner), leaf, shared, shared.grad, shared.data_ptr()))
+            setattr(owner, leaf, shared)
+            self.placed.append((owner, leaf, shared, shared.grad, shared.data_ptr()))
         self.param = nn.Parameter(self.data, requires_grad=grad)
         self.param.grad = self.grad
 
