@@ -568,7 +568,7 @@ def main(argv=None):
                     help="with --replay: estimate from this publication (default: the committed results/report)")
     qk.set_defaults(fn=lambda a: _quick().bench_quick(a))
     sc = sub.add_parser("same-curves", help="two versions' runs of the same settings and seeds: curves equal "
-                                             "in distribution? (IQMs, P(after better), each with its 95 % CI)")
+                                             "in distribution? (IQMs, P(after better), each with its 95 %% CI)")
     sc.add_argument("--before", nargs="+", required=True, metavar="RUN")
     sc.add_argument("--after", nargs="+", required=True, metavar="RUN", help="paired with --before by folder name")
     sc.add_argument("--out", default=None)
