@@ -389,7 +389,7 @@ def _index_scanned(q, queries) -> float:
     take = Q._take
 
     def counting(t, rows, at):
-        if t is q.index.order:
+        if t is q.index.chunk_mu:
             opened.append(at.numel() * t.shape[-1])
         return take(t, rows, at)
     Q._take = counting

@@ -222,7 +222,8 @@ def test_an_index_build_allocates_what_growth_bytes_counts():
     """A build is due at the first query from ``index_min`` on: growth_bytes counts it then, and
     nothing once it is built. At 40 slots in chunks of 4, groups of 3: 10 chunks padded to 12, 4
     groups of them padded to 6, and a top of 2; the index keeps 4 bytes a sorted slot (chunks
-    padded: 40) and a chunk number a slot, and 3 dim + 2 float64s a box (12 + 6 + 2), and makes the
+    padded: 40) and a place a slot, dim + 1 float64s a sorted slot (the pairs in chunk order), and
+    3 dim + 2 float64s a box (12 + 6 + 2), and makes the
     10 and 4 unpadded boxes first; beside it, a block's sort of 8 (6 dim + 8) bytes a slot."""
     q = LipschitzQ(2, 3, 2, 1.0, 50.0, index_min=40, chunk=4, fan=3, capacity=64)
     x = torch.arange(2 * 39 * 2, dtype=D).view(39, 2, 2)
@@ -232,14 +233,15 @@ def test_an_index_build_allocates_what_growth_bytes_counts():
     due = q.growth_bytes()     # the next insert reaches 40 slots and the query after it builds
     rows, w, dim = 6, 40, 2
     box = 8 * (3 * dim + 2)
-    kept = rows * (4 * 40 + 4 * w + box * (12 + 6 + 2))
+    kept = rows * (4 * 40 + 4 * w + box * (12 + 6 + 2) + 8 * (dim + 1) * 40)
     assert due == kept + rows * box * (10 + 4) + rows * w * 8 * (6 * dim + 8)
     q.insert(x[0] + 100, torch.tensor([0, 0]), t([1e3, 1e3]), torch.tensor([True, True]))
     assert q.width == 40
     q(x[0])
     ix = q.index
     assert [b.packed.shape[1] for b in ix.levels] == [12, 6, 2]
-    held = sum(v.numel() * v.element_size() for v in (ix.order, ix.chunk_of, *(b.packed for b in ix.levels)))
+    held = sum(v.numel() * v.element_size()
+               for v in (ix.order, ix.place_of, ix.chunk_s, ix.chunk_mu, *(b.packed for b in ix.levels)))
     assert held == kept
     assert q.growth_bytes() == 0
 
@@ -276,7 +278,7 @@ def test_dgpq_through_the_index_runs_as_through_the_scan(monkeypatch, tmp_path):
     from tests.test_run import csv, run
     out = {}
     for name, (index_min, chunk, fan) in {"scan": (10**9, 32, 32), "index": (1, 2, 2)}.items():
-        for attr, value in (("INDEX_MIN", index_min), ("CHUNK", chunk), ("FAN", fan)):
+        for attr, value in (("INDEX_SLOTS", index_min), ("CHUNK", chunk), ("FAN", fan)):
             monkeypatch.setattr(qhat_module, attr, value)
         assert run("--env", "square", "--agent", "dgpq", "--seeds", "0-2", "--episodes", 12,
                    "--out", tmp_path / name) == 0
@@ -361,3 +363,13 @@ def test_an_empty_q_reads_v_max_and_one_pair_bounds_its_own_action_only():
     q.insert(t([[0.0], [0.0]]), torch.tensor([0, 0]), t([1.0, 1.0]), torch.tensor([True, False]))
     assert torch.equal(q(t([[0.5], [0.5]])), t([[2.0, 100.0], [100.0, 100.0]]))
     assert torch.equal(q(t([[60.0], [0.5]])), t([[100.0, 100.0], [100.0, 100.0]]))
+
+
+def test_the_index_answers_from_a_number_of_slots_over_all_rows():
+    """By default the index takes over from 2^19 slots over all rows (its own work per query is
+    nearly fixed, the scan's grows with every slot): 20 seeds x 3 actions from 8,739 slots a row
+    (524,288 / 60 = 8,738.1), 4 x 2 from 65,536, one seed with 3 actions from 174,763."""
+    assert qhat_module.INDEX_SLOTS == 524288
+    for (S, A), width in {(20, 3): 8739, (4, 2): 65536, (1, 3): 174763}.items():
+        assert LipschitzQ(S, A, 1, 1.0, 1.0).index_min == width
+    assert LipschitzQ(20, 3, 1, 1.0, 1.0, index_min=7).index_min == 7

@@ -7,11 +7,12 @@ action, laid out ``(S, A, capacity, ...)``; an unused slot holds mu = +inf.
 Inserting into a full row doubles the capacity (documented growth, a copy,
 amortised O(1)).
 
-A large Q̂ (``index_min`` slots or more) answers through ``ChunkIndex``: its pairs sorted in
-Z-order into chunks of ``CHUNK`` with a bounding box and the least and largest mu of each, so
-that Eq. 7's minimum and the pruning of an insert scan only the chunks whose bound can matter.
-Those chunks' pairs go through the same arithmetic as a full scan, so the values are the same
-bit for bit; the index is derived from the storage, never saved, and rebuilt when stale.
+A large Q̂ (``index_min`` slots a row or more: by default ``INDEX_SLOTS`` over all rows) answers
+through ``ChunkIndex``: its pairs sorted in Z-order into chunks of ``CHUNK``, kept in that order
+beside the storage, with a bounding box and the least and largest mu of each, so that Eq. 7's
+minimum and the pruning of an insert scan only the chunks whose bound can matter. Those chunks'
+pairs go through the same arithmetic as a full scan, so the values are the same bit for bit; the
+index is derived from the storage, never saved, and rebuilt when stale.
 """
 from __future__ import annotations
 
@@ -56,8 +57,9 @@ class LipschitzQ:
         self.mu = torch.full((num_seeds, num_actions, capacity), torch.inf, **kw)
         self.width = 0  # slots [0, width) may be used in some row; the rest are unused
         self.version = 0  # bumped by every change, for callers that memoise values
-        # From this width on, queries and pruning go through the index (exact: the same values).
-        self.index_min = INDEX_MIN if index_min is None else index_min
+        # From this width on, queries and pruning go through the index (exact: the same values); by
+        # default from INDEX_SLOTS slots in all rows (its own work per query is nearly fixed).
+        self.index_min = -(-INDEX_SLOTS // (num_seeds * num_actions)) if index_min is None else index_min
         self._index_shape = (CHUNK if chunk is None else chunk, FAN if fan is None else fan)
         self.index = ChunkIndex(self.lipschitz, metric, *self._index_shape)
 
@@ -152,7 +154,8 @@ class LipschitzQ:
         self.index = ChunkIndex(self.lipschitz, self.metric, *self._index_shape)   # derived: rebuilt on use
 
 
-INDEX_MIN = 65536   # Q̂'s width from which the index answers (below it a scan costs less: bench.py qhat)
+INDEX_SLOTS = 2 ** 19   # slots (rows x width) from which the index answers: below, a scan costs less
+                        # (bench.py qhat-index; docs/agents/dgpq.md)
 CHUNK = 32      # pairs per chunk: its bound is checked in place of its pairs
 FAN = 32        # chunks per group: a group's bound is checked in place of its chunks'
 STALE = 16      # rebuilt once the inserts since the last build reach 1/STALE of its slots
@@ -246,9 +249,10 @@ class ChunkIndex:
     ``least + L d(x, box)``, and its rep's value ``least + L d(x, rep)`` bounds Eq. 7 from above; from
     the top, only the boxes whose lower bound reaches the smallest upper bound found are opened, and
     the chunks' pairs go through the scan's arithmetic (``values``), so the minimum is the scan's to
-    the bit. Pruning opens the boxes whose largest mu an insert can reach. An insert into a built
-    slot widens its boxes at every level; pruning leaves them wide (still bounds); after
-    ``built / STALE`` inserts the index is built again.
+    the bit. Pruning opens the boxes whose largest mu an insert can reach. The chunks' pairs are
+    copied in chunk order (``chunk_s``, ``chunk_mu``), so that opening one reads a block; inserts and
+    pruning write both copies. An insert into a built slot widens its boxes at every level; pruning
+    leaves them wide (still bounds); after ``built / STALE`` inserts the index is built again.
     """
 
     def __init__(self, lipschitz: float, metric: str, chunk: int = CHUNK, fan: int = FAN):
@@ -277,17 +281,23 @@ class ChunkIndex:
         rows, dim = s.shape[0], s.shape[-1]
         chunks = -(-w // self.chunk)
         order = torch.full((rows, chunks * self.chunk), -1, dtype=torch.int32, device=s.device)
-        self.chunk_of = torch.empty(rows, w, dtype=torch.int32, device=s.device)   # slot -> its chunk
-        place = torch.arange(w, device=s.device, dtype=torch.int32).floor_divide(self.chunk)
+        self.place_of = torch.empty(rows, w, dtype=torch.int32, device=s.device)   # slot -> chunk * CHUNK + k
+        place = torch.arange(w, device=s.device, dtype=torch.int32)
         packed = s.new_empty(rows, chunks, 3 * dim + 2)
+        # the pairs again in chunk order: opening a chunk reads one contiguous block (a gather of
+        # its slots from the storage cost more than the scan it saved)
+        self.chunk_s = s.new_empty(rows, chunks, self.chunk, dim)
+        self.chunk_mu = mu.new_empty(rows, chunks, self.chunk)
         step = max(1, BUILD_SLOTS // max(w, 1))
         for a in range(0, rows, step):
             b = min(rows, a + step)
             sorted_ = _zorder(s[a:b, :w], torch.isfinite(mu[a:b, :w])).argsort(dim=1, stable=True)
             order[a:b, :w] = sorted_
-            self.chunk_of[a:b].scatter_(1, sorted_, place.expand(b - a, w))
-            packed[a:b] = _Boxes.around(*self._pairs(s, mu, torch.arange(a, b, device=s.device)[:, None, None],
-                                                     order[a:b].view(b - a, chunks, self.chunk))).packed
+            self.place_of[a:b].scatter_(1, sorted_, place.expand(b - a, w))
+            pairs = self._pairs(s, mu, torch.arange(a, b, device=s.device)[:, None, None],
+                                order[a:b].view(b - a, chunks, self.chunk))
+            self.chunk_s[a:b], self.chunk_mu[a:b] = pairs[:2]
+            packed[a:b] = _Boxes.around(*pairs).packed
         self.order = order.view(rows, chunks, self.chunk)
         # levels[0]: the chunks; each next level merges ``fan`` boxes of the one below, up to a few a row
         self.levels = [_Boxes(packed)]
@@ -300,16 +310,18 @@ class ChunkIndex:
         return self.built == 0 or (self.inserts + 1) * STALE >= self.built
 
     def build_bytes(self, rows: int, width: int, dim: int) -> int:
-        """Bytes a build at ``width`` allocates: the index it keeps (a sorted slot and a chunk number
-        per slot, 4 bytes each; 3 dim + 2 float64s per box of every level, each level below the top
-        padded to whole groups of ``fan``, its unpadded copy made first) and at most one block's sort
-        beside it (~8 (6 dim + 8) bytes a slot)."""
+        """Bytes a build at ``width`` allocates: the index it keeps (a sorted slot and a place per
+        slot, 4 bytes each; the pairs' states and mu in chunk order, dim + 1 float64s per sorted slot;
+        3 dim + 2 float64s per box of every level, each level below the top padded to whole groups of
+        ``fan``, its unpadded copy made first) and at most one block's sort beside it (~8 (6 dim + 8)
+        bytes a slot)."""
         n = chunks = -(-width // self.chunk)
         boxes = 0
         while n > self.fan:
             padded = n + (-n % self.fan)
             boxes, n = boxes + n + padded, padded // self.fan
-        kept = rows * (4 * chunks * self.chunk + 4 * width + 8 * (3 * dim + 2) * (boxes + n))
+        kept = rows * (4 * chunks * self.chunk + 4 * width + 8 * (3 * dim + 2) * (boxes + n)
+                       + 8 * (dim + 1) * chunks * self.chunk)
         return kept + min(rows * width, max(BUILD_SLOTS, width)) * 8 * (6 * dim + 8)
 
     @staticmethod
@@ -346,7 +358,7 @@ class ChunkIndex:
             r, at = r[k], at[k, j]
             if level:
                 at, boxes = self._open(level, r, at)
-        pts, m, _ = self._pairs(s, mu, r[:, None], _take(self.order, r, at))
+        pts, m = _take(self.chunk_s, r, at), _take(self.chunk_mu, r, at)
         return tail.scatter_reduce(0, r, values(x[r], pts, m, L, self.metric).amin(1), "amin")
 
     def _reach(self, least, near, upper):
@@ -382,10 +394,16 @@ class ChunkIndex:
             if level:
                 at, boxes = self._open(level, rows[i], at)
         r = rows[i]
+        pts, m = _take(self.chunk_s, r, at), _take(self.chunk_mu, r, at)
+        redundant = (values(x[i], pts, new_mu[i, None], L, self.metric) <= m) & torch.isfinite(m)
         slots = _take(self.order, r, at)
-        pts, m, used = self._pairs(s, mu, r[:, None], slots)
-        redundant = (values(x[i], pts, new_mu[i, None], L, self.metric) <= m) & used
         mu[r[:, None].expand_as(slots)[redundant], slots[redundant].long()] = torch.inf
+        self.chunk_mu.view(-1)[self._places(r, at)[redundant]] = torch.inf     # the copy too
+
+    def _places(self, r: torch.Tensor, at: torch.Tensor) -> torch.Tensor:
+        """Flat positions in ``chunk_mu`` of the pairs of chunks ``at`` of rows ``r``: (k, chunk)."""
+        first = (r * self.chunk_mu.shape[1] + at) * self.chunk
+        return first[:, None] + torch.arange(self.chunk, device=r.device)
 
     def inserted(self, rows: torch.Tensor, slots: torch.Tensor, x: torch.Tensor, mu: torch.Tensor) -> None:
         """Pairs (x, mu) written into ``slots`` of ``rows``: a built slot's boxes, at every level, take them in."""
@@ -393,8 +411,11 @@ class ChunkIndex:
             return
         self.inserts += 1
         inside = slots < self.built
-        r, c = rows[inside], self.chunk_of[rows[inside], slots[inside]].long()
+        r, place = rows[inside], self.place_of[rows[inside], slots[inside]].long()
         x, mu = x[inside], mu[inside]
+        c = place // self.chunk
+        flat = r * self.chunk_mu[0].numel() + place
+        self.chunk_s.view(-1, x.shape[-1])[flat], self.chunk_mu.view(-1)[flat] = x, mu
         for level, boxes in enumerate(self.levels):
             at = c // self.fan ** level
             boxes.lo[r, at] = torch.minimum(boxes.lo[r, at], x)
