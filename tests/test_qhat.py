@@ -156,10 +156,26 @@ def check_index_against_scan(seed, metric, dim, chunk, fan, lipschitz, grid, ins
         scan.insert(x, a, mu, mask)
         index.insert(x, a, mu, mask)
         assert torch.equal(scan.mu, index.mu) and torch.equal(scan.s, index.s)
+        if index.index.built:
+            check_chunk_copy(index)
         probe = torch.rand(S, dim, generator=g, dtype=D) * 5 - 2.5
         for at in (probe, x):
             assert torch.equal(scan(at), index(at))
     assert index.index.built > 0
+
+
+def check_chunk_copy(q):
+    """The index's pairs in chunk order are the storage's pairs in its sorted slots, as inserts and
+    pruning left them (padding: mu +inf)."""
+    ix = q.index
+    rows = q.S * q.A
+    slots = ix.order.reshape(rows, -1).long()
+    s, mu = q._rows()
+    want_mu = mu.gather(1, slots.clamp_min(0)).masked_fill(slots < 0, torch.inf)
+    assert torch.equal(ix.chunk_mu.reshape(rows, -1), want_mu)
+    held = torch.isfinite(want_mu)
+    want_s = s.gather(1, slots.clamp_min(0)[..., None].expand(-1, -1, q.dim))
+    assert torch.equal(ix.chunk_s.reshape(rows, -1, q.dim)[held], want_s[held])
 
 
 CASES = dict(seed=st.integers(0, 2**31 - 1), metric=st.sampled_from(sorted(("l1", "l2", "linf"))),
@@ -335,6 +351,39 @@ def test_pruning_through_the_index_uses_l_and_prunes_at_equality():
         assert torch.equal(scan.mu, index.mu) and torch.equal(scan.s, index.s)
     assert index.index.built == built       # no rebuild: (1, 5) stayed in the tail
     assert index.size().item() == 42        # (13, 3) replaced itself; (1, 5) kept beside (0, 0)
+
+
+def test_a_pair_in_the_tail_met_exactly_is_pruned_as_the_scan_prunes_it():
+    """Built at 40 slots; (100, 5) goes into the tail (slot 40), then again: the first is pruned
+    (the scan's test is <=) and the second takes its slot, with no rebuild between (2 inserts of
+    40 / 16)."""
+    scan, _ = twins(1, 1, 1, 7.0, "l1", capacity=64)
+    index = LipschitzQ(1, 1, 1, 7.0, 50.0, "l1", index_min=40, chunk=2, fan=2, capacity=64)
+    for k in range(40):
+        for q in (scan, index):
+            q.insert(t([[float(10 + k)]]), torch.tensor([0]), t([float(k)]), YES)
+    index(t([[0.0]]))
+    for _ in range(2):
+        for q in (scan, index):
+            q.insert(t([[100.0]]), torch.tensor([0]), t([5.0]), YES)
+    assert index.index.built == 40 and index.width == 41     # the second took the first's slot
+    assert torch.equal(scan.mu, index.mu) and index.size().item() == 41
+
+
+def test_build_bytes_merges_no_level_of_exactly_fan_boxes():
+    """12 slots in chunks of 4 are 3 chunks, a top of exactly ``fan`` = 3 boxes: nothing merged, no
+    padding. One row of 1-D pairs keeps 4 bytes a sorted slot and a place (12 each), 2 float64s a
+    sorted slot, 5 a box (3); beside it, a sort of 8 (6 + 8) bytes a slot."""
+    kept = 4 * 12 + 4 * 12 + 8 * 2 * 12 + 8 * 5 * 3
+    q = LipschitzQ(1, 1, 1, 1.0, 50.0, index_min=12, chunk=4, fan=3, capacity=16)
+    assert q.index.build_bytes(1, 12, 1) == kept + 12 * 8 * 14
+    for k in range(12):                     # 1 apart, mu 0: none bounds another
+        q.insert(t([[float(k)]]), torch.tensor([0]), t([0.0]), YES)
+    q(t([[0.5]]))
+    ix = q.index
+    assert ix.built == 12 and [b.packed.shape[1] for b in ix.levels] == [3]
+    assert kept == sum(v.numel() * v.element_size()
+                       for v in (ix.order, ix.place_of, ix.chunk_s, ix.chunk_mu, *(b.packed for b in ix.levels)))
 
 
 def test_growth_bytes_counts_no_build_two_slots_short_of_index_min():
