@@ -42,8 +42,8 @@ import torch
 
 from trl_dgpq.analysis.runs import read_csv_exact
 
-from .experiment import (MemoryLimit, build, check_memory, describe, load_sections, memory_estimate, memory_guard,
-                         use_threads)
+from .experiment import (MemoryLimit, build, check_memory, classes, describe, load_sections, memory_estimate,
+                         memory_guard, use_threads)
 from .online import OnlineCollector
 
 CONFIG, EPISODES, STATUS, CHECKPOINT = "config.json", "episodes.csv", "status.json", "checkpoint.pt"
@@ -83,9 +83,14 @@ class Interrupted(Exception):
 def disk_note(config: dict) -> str:
     """What a run's checkpoints will take on disk, from its agents' state at the start: replay
     buffers are saved at their capacity; a sparse GP saves the slots it uses, up to its
-    budget (Q-hat, growing, may pass the estimate)."""
-    one = memory_estimate(config)
-    return f"checkpoints up to ~{one / 1e6:.3g} MB each (its agents' state when full): 3 while it runs, 2 once finished"
+    budget. An agent whose state has no bound (``grows``: DGPQ's Q̂ keeps every pair it is
+    given) is said to take more as it learns."""
+    one = memory_estimate(config) / 1e6
+    if getattr(classes(config["run"])[1], "grows", False):
+        size = f"from ~{one:.3g} MB each, growing as the agent learns (its state has no bound)"
+    else:
+        size = f"up to ~{one:.3g} MB each (its agents' state when full)"
+    return f"checkpoints {size}: 3 while it runs, 2 once finished"
 
 
 def atomic_write(path: Path, write, before_replace=None) -> None:

@@ -420,10 +420,19 @@ def test_damage_tells_cut_short_from_not_a_checkpoint(tmp_path):
 
 def test_disk_note_is_the_memory_estimate_in_mb():
     from trl_dgpq.collectors.experiment import memory_estimate, resolve_config
-    config = resolve_config(seeds=[0, 1], episodes=3)
+    config = resolve_config(agent="dqn", seeds=[0, 1], episodes=3)
     mb = memory_estimate(config) / 1e6
     assert runner.disk_note(config) == (f"checkpoints up to ~{float(f'{mb:.3g}'):g} MB each (its agents' state when "
                                         "full): 3 while it runs, 2 once finished")
+
+
+def test_disk_note_says_a_growing_agents_checkpoints_grow():
+    """DGPQ's Q̂ has no bound: its note gives the size at the start and says it grows; DQN's
+    replay memory is saved at its capacity: an upper bound."""
+    from trl_dgpq.collectors.experiment import resolve_config
+    note = runner.disk_note(resolve_config(env="square", agent="dgpq", seeds=[0], episodes=3))
+    assert note.startswith("checkpoints from ~") and ", growing as the agent learns (its state has no bound): 3 " in note
+    assert "up to ~" in runner.disk_note(resolve_config(agent="dqn", seeds=[0], episodes=3))
 
 
 def test_deferred_signals_set_a_flag_and_put_the_handlers_back():

@@ -149,6 +149,7 @@ class DGPQ:
     """Algorithm 1 for S seeds at once (one Q̂ and |A| GPs per seed)."""
 
     Config = DGPQConfig
+    grows = True    # Q̂ keeps every pair step 6 gives it, pruning only those a new pair bounds
     COUNTERS = ("since_fit", "kernel_fits", "qhat_updates", "gp_adds")
 
     def __init__(self, cfg: DGPQConfig, seeds: Sequence[int], state_dim: int, num_actions: int,

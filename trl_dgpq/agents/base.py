@@ -6,7 +6,9 @@ the collector. Its settings are one dataclass (``Config``); it is built from
 the keys its TensorDicts hold and its actions' names, never its class -- and keeps
 seeds independent: seed i alone behaves exactly as
 seed i in any batch. A non-learning agent (a scripted policy) is an agent whose
-``observe`` does nothing.
+``observe`` does nothing. An agent whose state grows without bound as it learns says so with a
+class attribute ``grows = True`` (``memory_bytes`` is then where it starts; the runner's note on
+checkpoint sizes reads it).
 """
 from __future__ import annotations
 
