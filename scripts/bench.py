@@ -464,6 +464,59 @@ def bench_imports(args):
     print(f"wrote {path}")
 
 
+def bench_against_published(args):
+    """A run of a published experiment again (``--run``: its folder, the same settings and seeds,
+    at least part of its episodes): its rows against the publication's in every column but the
+    timing ones (the run's floats written as the publication writes them), and the CPU time of both
+    per window of episodes and in all, with their ratio. What a speed change must show: the same
+    rows, in less time."""
+    import io
+
+    import pandas as pd
+
+    from trl_dgpq.analysis import published
+    from trl_dgpq.analysis.runs import load_run
+    from trl_dgpq.commands.reproduce import same_config
+
+    run = load_run(Path(args.run))
+    pub = published.load(args.publication, args.experiment)
+    sections = lambda c: same_config({k: c[k] for k in ("run", "env", "agent")})   # noqa: E731
+    mine, theirs = sections(run.config), sections(pub.config)
+    mine["run"]["episodes"] = theirs["run"]["episodes"]          # a shorter run of the same plan
+    if mine != theirs:
+        differ = [f"{s}.{k}" for s in mine for k in mine[s] if mine[s][k] != theirs[s].get(k)]
+        raise SystemExit(f"{args.run} is not {args.experiment}'s settings: {', '.join(differ)} differ")
+    n = int(run.df.groupby("seed")["episode"].max().min())        # the episodes every seed has done
+    ours, pubs = (d[d.episode <= n].sort_values(["seed", "episode"]).reset_index(drop=True) for d in (run.df, pub.df))
+    cols = [c for c in pubs.columns if c not in ("wall_s", "cpu_s", "us_per_step", "job", "env_steps")]
+    written = pd.read_csv(io.StringIO(ours[cols].to_csv(index=False, float_format=published.FLOAT_FORMAT)))
+    differ = [c for c in cols if not written[c].equals(pubs[c])]
+    cpu = lambda d: d.groupby("episode")["cpu_s"].sum()   # noqa: E731  (each row: its seed's share)
+    windows = []
+    for lo in range(1, n + 1, args.window):
+        hi = min(n, lo + args.window - 1)
+        p, o = cpu(pubs).loc[lo:hi].sum(), cpu(ours).loc[lo:hi].sum()
+        windows.append(dict(episodes=f"{lo}-{hi}", published_cpu_s=round(float(p), 1), run_cpu_s=round(float(o), 1),
+                            ratio=round(float(p / o), 2)))
+    p, o = float(pubs.cpu_s.sum()), float(ours.cpu_s.sum())
+    total = dict(published_cpu_min=round(p / 60, 1), run_cpu_min=round(o / 60, 1), ratio=round(p / o, 2))
+    print(f"{args.experiment}: {args.run} against {args.publication}, episodes 1-{n} of {len(pubs.seed.unique())} seeds "
+          f"({len(pubs):,} rows)")
+    print(f"  the same rows in {', '.join(cols)}: {not differ}" + (f" (differ: {', '.join(differ)})" if differ else ""))
+    print(f"  {'episodes':>11} {'published CPU s':>16} {'run CPU s':>10} {'ratio':>6}")
+    for w in windows:
+        print(f"  {w['episodes']:>11} {w['published_cpu_s']:>16,.1f} {w['run_cpu_s']:>10,.1f} {w['ratio']:>6.2f}")
+    print(f"  all: {total['published_cpu_min']:,.1f} against {total['run_cpu_min']:,.1f} min of CPU "
+          f"({total['ratio']:.2f}x); the run's commit {', '.join(published.commits_of(run))}, the publication's "
+          f"{', '.join(published.commits_of(pub))}")
+    out = Path(args.out or "bench-against-published.json")
+    out.write_text(json.dumps(dict(meta=dict(experiment=args.experiment, run=str(args.run), publication=str(args.publication),
+                                             episodes=n, columns=cols, run_commits=published.commits_of(run),
+                                             statistic="CPU time summed over the rows (each a seed's share of its batch)"),
+                                   same_rows=not differ, differ=differ, windows=windows, total=total), indent=1))
+    print(f"wrote {out}")
+
+
 def _neural():
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import bench_neural
@@ -573,6 +626,13 @@ def main(argv=None):
     sc.add_argument("--after", nargs="+", required=True, metavar="RUN", help="paired with --before by folder name")
     sc.add_argument("--out", default=None)
     sc.set_defaults(fn=lambda a: _neural().bench_same_curves(a))
+    ap = sub.add_parser("against-published", help="a published experiment run again: the same rows? in how much CPU?")
+    ap.add_argument("--run", required=True, metavar="DIR", help="the run's folder (train.py --out)")
+    ap.add_argument("--experiment", required=True, help="the published experiment it runs again")
+    ap.add_argument("--publication", default="results/report", metavar="DIR")
+    ap.add_argument("--window", type=int, default=100, help="episodes per row of the table")
+    ap.add_argument("--out", default=None)
+    ap.set_defaults(fn=bench_against_published)
     sp = sub.add_parser("step-parts", help="a learning step of DDPG and DQN: the update and the work around it")
     sp.add_argument("--threads", type=int, default=1)
     sp.add_argument("--warmup", type=int, default=1_100)

@@ -30,3 +30,35 @@ def test_each_bench_sub_command_answers_help(monkeypatch, capsys):
     assert {"qhat", "same-curves", "bound", "parity"} <= set(subs)
     for name in subs:
         assert f"usage: bench.py {name}" in help_of(monkeypatch, capsys, SCRIPTS / "bench.py", name)
+
+
+def test_bench_against_published_finds_the_same_rows_and_a_changed_one(tmp_path, capsys):
+    """A run "published" by hand (its rows at 7 significant digits, its config) against the same
+    run: the same rows, CPU ratio 1 in every window; a return changed in the publication is named;
+    a run with other settings (more seeds) is refused by name."""
+    import json
+
+    import pandas as pd
+
+    from tests.test_run import run
+    from trl_dgpq.analysis import published
+    assert run("--seeds", "0-1", "--episodes", 4, "--out", tmp_path / "a") == 0
+    assert run("--seeds", "0-2", "--episodes", 4, "--out", tmp_path / "b") == 0
+    data = tmp_path / "pub" / published.DATA
+    data.mkdir(parents=True)
+    rows = pd.read_csv(tmp_path / "a" / "episodes.csv").drop(columns=["us_per_step"])
+    config = json.loads((tmp_path / "a" / "config.json").read_text())
+    (data / "x.json").write_text(json.dumps(config))
+    bench = runpy.run_path(str(SCRIPTS / "bench.py"), run_name="bench")["main"]
+    argv = ["against-published", "--experiment", "x", "--publication", str(tmp_path / "pub"), "--window", "2"]
+    for changed in (False, True):
+        if changed:
+            rows.loc[3, "return"] += 1.0
+        rows.to_csv(data / "x.csv.xz", index=False, float_format=published.FLOAT_FORMAT)
+        bench([*argv, "--run", str(tmp_path / "a"), "--out", str(tmp_path / "r.json")])
+        got = json.loads((tmp_path / "r.json").read_text())
+        assert got["same_rows"] is not changed and got["differ"] == (["return"] if changed else [])
+        assert [w["episodes"] for w in got["windows"]] == ["1-2", "3-4"] and {w["ratio"] for w in got["windows"]} == {1.0}
+    assert "the same rows in seed, episode, steps, return" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="is not x's settings: run.seeds differ"):
+        bench([*argv, "--run", str(tmp_path / "b")])
