@@ -466,30 +466,34 @@ def bench_imports(args):
 
 def bench_against_published(args):
     """A run of a published experiment again (``--run``: its folder, the same settings and seeds,
-    at least part of its episodes): its rows against the publication's in every column but the
+    any number of episodes: compared over those both have): its rows against the publication's in every column but the
     timing ones (the run's floats written as the publication writes them), and the CPU time of both
     per window of episodes and in all, with their ratio. What a speed change must show: the same
     rows, in less time."""
-    import io
-
-    import pandas as pd
+    import tempfile
 
     from trl_dgpq.analysis import published
-    from trl_dgpq.analysis.runs import load_run
+    from trl_dgpq.analysis.runs import load_run, read_csv_exact
     from trl_dgpq.commands.reproduce import same_config
 
     run = load_run(Path(args.run))
     pub = published.load(args.publication, args.experiment)
     sections = lambda c: same_config({k: c[k] for k in ("run", "env", "agent")})   # noqa: E731
     mine, theirs = sections(run.config), sections(pub.config)
-    mine["run"]["episodes"] = theirs["run"]["episodes"]          # a shorter run of the same plan
-    if mine != theirs:
-        differ = [f"{s}.{k}" for s in mine for k in mine[s] if mine[s][k] != theirs[s].get(k)]
+    for c in (mine, theirs):        # neither changes a row: a shorter or longer run of the same plan
+        for k in ("episodes", "checkpoint_every", "max_memory"):
+            c["run"].pop(k, None)
+    differ = [f"{s}.{k}" for s in theirs for k in sorted(set(mine[s]) | set(theirs[s])) if mine[s].get(k) != theirs[s].get(k)]
+    if differ:
         raise SystemExit(f"{args.run} is not {args.experiment}'s settings: {', '.join(differ)} differ")
-    n = int(run.df.groupby("seed")["episode"].max().min())        # the episodes every seed has done
+    if "cpu_s" not in pub.df:
+        raise SystemExit(f"{args.publication} keeps no cpu_s for {args.experiment} (published before it was kept)")
+    n = int(min(d.groupby("seed")["episode"].max().min() for d in (run.df, pub.df)))   # every seed has both
     ours, pubs = (d[d.episode <= n].sort_values(["seed", "episode"]).reset_index(drop=True) for d in (run.df, pub.df))
     cols = [c for c in pubs.columns if c not in ("wall_s", "cpu_s", "us_per_step", "job", "env_steps")]
-    written = pd.read_csv(io.StringIO(ours[cols].to_csv(index=False, float_format=published.FLOAT_FORMAT)))
+    with tempfile.TemporaryDirectory() as tmp:      # written and read back as the publication's rows are
+        ours[cols].to_csv(Path(tmp) / "rows.csv", index=False, float_format=published.FLOAT_FORMAT)
+        written = read_csv_exact(Path(tmp) / "rows.csv")
     differ = [c for c in cols if not written[c].equals(pubs[c])]
     cpu = lambda d: d.groupby("episode")["cpu_s"].sum()   # noqa: E731  (each row: its seed's share)
     windows = []

@@ -422,3 +422,14 @@ def test_the_index_answers_from_a_number_of_slots_over_all_rows():
     for (S, A), width in {(20, 3): 8739, (4, 2): 65536, (1, 3): 174763}.items():
         assert LipschitzQ(S, A, 1, 1.0, 1.0).index_min == width
     assert LipschitzQ(20, 3, 1, 1.0, 1.0, index_min=7).index_min == 7
+
+
+def test_float32_pairs_go_into_float64_storage_through_the_index_too():
+    """Inserts in float32 into a float64 Q̂ are stored as the scan stores them, built index or not."""
+    scan, index = twins(1, 1, 1, 1.0, "l1")
+    for k in range(12):
+        for q in (scan, index):
+            q.insert(torch.tensor([[float(k)]], dtype=torch.float32), torch.tensor([0]),
+                     torch.tensor([0.5 * k], dtype=torch.float32), YES)
+            q(t([[0.25]]))
+    assert index.index.built and torch.equal(scan.mu, index.mu) and torch.equal(scan(t([[3.3]])), index(t([[3.3]])))

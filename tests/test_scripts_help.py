@@ -35,7 +35,8 @@ def test_each_bench_sub_command_answers_help(monkeypatch, capsys):
 def test_bench_against_published_finds_the_same_rows_and_a_changed_one(tmp_path, capsys):
     """A run "published" by hand (its rows at 7 significant digits, its config) against the same
     run: the same rows, CPU ratio 1 in every window; a return changed in the publication is named;
-    a run with other settings (more seeds) is refused by name."""
+    a run longer than the publication is compared over the publication's episodes; a run with other
+    settings (more seeds) is refused by name."""
     import json
 
     import pandas as pd
@@ -60,5 +61,9 @@ def test_bench_against_published_finds_the_same_rows_and_a_changed_one(tmp_path,
         assert got["same_rows"] is not changed and got["differ"] == (["return"] if changed else [])
         assert [w["episodes"] for w in got["windows"]] == ["1-2", "3-4"] and {w["ratio"] for w in got["windows"]} == {1.0}
     assert "the same rows in seed, episode, steps, return" in capsys.readouterr().out
+    rows[rows.episode <= 3].to_csv(data / "x.csv.xz", index=False, float_format=published.FLOAT_FORMAT)
+    bench([*argv, "--run", str(tmp_path / "a"), "--out", str(tmp_path / "r.json")])   # the run is the longer
+    got = json.loads((tmp_path / "r.json").read_text())
+    assert got["meta"]["episodes"] == 3 and [w["episodes"] for w in got["windows"]] == ["1-2", "3-3"]
     with pytest.raises(SystemExit, match="is not x's settings: run.seeds differ"):
         bench([*argv, "--run", str(tmp_path / "b")])

@@ -105,7 +105,7 @@ class LipschitzQ:
         if rows.numel() == 0:
             return
         self.version += 1
-        x, a, mu = x[rows], a[rows], mu[rows]
+        x, a, mu = x[rows].to(self.s.dtype), a[rows], mu[rows].to(self.mu.dtype)   # as stored (the index copies them)
         w = self.width
         if w >= self.index_min:
             self.index.prune(x, rows * self.A + a, mu, *self._rows(), w)
