@@ -474,12 +474,11 @@ def bench_against_published(args):
 
     from trl_dgpq.analysis import published
     from trl_dgpq.analysis.runs import load_run, read_csv_exact
-    from trl_dgpq.commands.reproduce import same_config
+    from trl_dgpq.commands.reproduce import same_sections
 
     run = load_run(Path(args.run))
     pub = published.load(args.publication, args.experiment)
-    sections = lambda c: same_config({k: c[k] for k in ("run", "env", "agent")})   # noqa: E731
-    mine, theirs = sections(run.config), sections(pub.config)
+    mine, theirs = same_sections(run.config), same_sections(pub.config)
     for c in (mine, theirs):        # neither changes a row: a shorter or longer run of the same plan
         for k in ("episodes", "checkpoint_every", "max_memory"):
             c["run"].pop(k, None)
@@ -495,11 +494,12 @@ def bench_against_published(args):
         ours[cols].to_csv(Path(tmp) / "rows.csv", index=False, float_format=published.FLOAT_FORMAT)
         written = read_csv_exact(Path(tmp) / "rows.csv")
     differ = [c for c in cols if not written[c].equals(pubs[c])]
-    cpu = lambda d: d.groupby("episode")["cpu_s"].sum()   # noqa: E731  (each row: its seed's share)
+    # per episode, the batch's CPU (each row holds its seed's share)
+    cpu_pub, cpu_run = (d.groupby("episode")["cpu_s"].sum() for d in (pubs, ours))
     windows = []
     for lo in range(1, n + 1, args.window):
         hi = min(n, lo + args.window - 1)
-        p, o = cpu(pubs).loc[lo:hi].sum(), cpu(ours).loc[lo:hi].sum()
+        p, o = cpu_pub.loc[lo:hi].sum(), cpu_run.loc[lo:hi].sum()
         windows.append(dict(episodes=f"{lo}-{hi}", published_cpu_s=round(float(p), 1), run_cpu_s=round(float(o), 1),
                             ratio=round(float(p / o), 2)))
     p, o = float(pubs.cpu_s.sum()), float(ours.cpu_s.sum())

@@ -92,6 +92,12 @@ def same_config(config: dict) -> dict:
     return {**config, "run": to_dict(run), "env": to_dict(env), "agent": to_dict(agent)}
 
 
+def same_sections(recorded: dict) -> dict:
+    """``same_config`` of a recorded config's run, env and agent sections alone (it also holds the
+    git, jobs and versions it ran with)."""
+    return same_config({k: recorded[k] for k in ("run", "env", "agent")})
+
+
 def plan_settings(scale: str, only=None) -> dict:
     """{experiment name: its settings as given} at ``scale`` (env, agent, preset, seeds, episodes,
     env_steps and the experiment's own settings): what ``experiments`` resolves and ``--sweep-file``
@@ -649,8 +655,7 @@ def kept_experiments(to: Path, earlier: dict, scale: str, keep: list) -> list:
     from trl_dgpq.analysis import published
     planned = experiments(scale, keep)
     names = [n for n in earlier["experiments"] if n in planned]
-    sections = lambda c: same_config({k: c[k] for k in ("run", "env", "agent")})   # noqa: E731
-    moved = [n for n in names if sections(published.recorded_config(to, n)) != sections(planned[n])]
+    moved = [n for n in names if same_sections(published.recorded_config(to, n)) != same_sections(planned[n])]
     if moved:
         raise ValueError(f"the plan of {', '.join(moved)} changed since they were published: run them again "
                          "(their parts' --only) and publish those parts too")
