@@ -130,10 +130,15 @@ def test_replay_samples_each_seeds_own_transitions_uniformly():
 
 
 def test_keep_rows_restores_finished_seeds_only():
-    t = torch.arange(6.0).view(3, 2)
-    with keep_rows(lambda: [t], torch.tensor([False, True, False])):
-        t.mul_(10)
-    assert t.tolist() == [[0.0, 10.0], [2.0, 3.0], [40.0, 50.0]]
+    stack = SeedStack(build_per_seed(lambda: nn.Sequential(nn.Linear(2, 3)), [0, 1, 2]))
+    t = stack.flat.data
+    before = t.clone()
+    with keep_rows(lambda: [(t, stack.flat)], torch.tensor([False, True, False])):
+        t.add_(10)
+    # by hand: the weights (3, 2, 3) at 0-17, padding to 32 (whole lines of 16), the biases (3, 3) at 32-40
+    kept = list(range(6, 12)) + list(range(35, 38))
+    changed = [i for i in range(48) if i not in kept]
+    assert torch.equal(t[kept], before[kept]) and torch.equal(t[changed], before[changed] + 10)
 
 
 DQN_SMALL = dict(env="gym:CartPole-v1", agent="dqn", batch_size=16, learning_starts=32, train_freq=1,
@@ -162,6 +167,39 @@ def test_seed_alone_equals_seed_in_batches_of_2_3_8(cfg):
         pd.testing.assert_frame_equal(rows, alone)
         assert state.keys() == alone_state.keys() and all(torch.equal(state[k], alone_state[k]) for k in state)
         assert df.groupby("seed").steps.sum().nunique() > 1 or cfg["env"] == "liquidation"  # seeds finished apart
+
+
+@pytest.mark.parametrize("cfg", [DQN_SMALL, DDPG_SMALL, TD3_SMALL], ids=["dqn", "ddpg", "td3"])
+def test_a_seed_learning_beside_finished_ones_is_the_seed_alone(cfg):
+    """Bitwise, for every learner: seed 1 learns in a batch whose seeds 0 and 2 finish at steps 40
+    and 50 (their updates left out of the batch's products from then on, ``seed_rows``) and ends
+    with the networks, targets and Adam moments it has alone; the finished seeds keep theirs as
+    they stopped with. (Liquidation's episodes are all as long here, so the run-level test above
+    never has a seed finish before another for DDPG and TD3.)"""
+    def seed_tensors(agent):   # the networks' and targets' weights and biases, Adam's moments
+        return [x for k, x in agent.nets.state_dict().items() if k.endswith(("weight", "bias"))] + [
+            x for o in agent.optimizers for x in o.seed_tensors()]
+
+    def run(seeds, stop=None):
+        env, agent = build(resolve_config(seeds=seeds, **cfg))
+        td, active, kept = env.reset(), torch.ones(len(seeds), dtype=torch.bool), {}
+        for t in range(70):
+            for i, at in (stop or {}).items():
+                if t == at:
+                    active[i] = False
+                    kept[i] = [x[i].clone() for x in seed_tensors(agent)]
+            td["action"] = agent.act(td)
+            out, td = env.step_and_maybe_reset(td)
+            agent.observe(out, active)
+        return agent, kept
+    alone, _ = run([1])
+    batch, kept = run([0, 1, 2], stop={0: 40, 2: 50})
+    tensors = seed_tensors(batch)
+    assert len(tensors) == len(seed_tensors(alone)) > 8
+    assert all(torch.equal(b[1], a[0]) for b, a in zip(tensors, seed_tensors(alone)))
+    for i in (0, 2):
+        assert all(torch.equal(b[i], k) for b, k in zip(tensors, kept[i]))
+    assert int(alone.updates[0]) > int(batch.updates[2]) > int(batch.updates[0]) > 0
 
 
 @pytest.mark.parametrize("cfg", [DQN_SMALL, DDPG_SMALL, TD3_SMALL], ids=["dqn", "ddpg", "td3"])

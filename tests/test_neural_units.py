@@ -12,7 +12,7 @@ from conftest import through_disk
 from trl_dgpq.agents.ddpg import DDPG, Critic, DDPGConfig
 from trl_dgpq.agents.dqn import DQN, DQNConfig
 from trl_dgpq.agents.neural import (SeedLinear, SeedReplay, SeedStack, build_per_seed, clip_grad_norm_per_seed,
-                                    keep_rows)
+                                    keep_rows, seed_rows)
 from trl_dgpq.collectors.experiment import build, memory_estimate, resolve_config
 from trl_dgpq.rng import LEARNER_STREAM, SeedStreams, stream_id
 
@@ -100,19 +100,59 @@ def test_a_stack_refuses_layers_it_cannot_stack_and_inputs_for_other_seed_counts
         stack(torch.zeros(3, 2))
 
 
-def test_keep_rows_keeps_seed_rows_of_any_rank_and_leaves_other_tensors_alone():
-    """Rows of 1-D (S,) tensors are kept like those of matrices; a scalar (Adam's step) and a
-    tensor whose first dimension is not the seeds' are not touched; no row kept: nothing put back."""
-    vec, mat, scalar, other = torch.arange(3.0), torch.arange(6.0).view(3, 2), torch.tensor(5.0), torch.ones(4, 3)
-    with keep_rows(lambda: [vec, mat, scalar, other], torch.tensor([True, False, True])):
-        for t in (vec, mat, scalar, other):
+def test_keep_rows_keeps_seed_rows_of_every_buffer_by_its_layout_and_nothing_when_no_row_is_kept():
+    """Two buffers of one layout (parameters and a moment) and one of another; rows of 1-D biases
+    kept like those of matrices; no row kept: nothing put back."""
+    a = SeedStack(build_per_seed(lambda: nn.Sequential(nn.Linear(1, 2), nn.Linear(2, 1)), [0, 1, 2]))
+    b = SeedStack(build_per_seed(lambda: nn.Sequential(nn.Linear(2, 1)), [0, 1, 2]))
+    moment = torch.zeros_like(a.flat.data)
+    bufs = [(a.flat.data, a.flat), (moment, a.flat), (b.flat.data, b.flat)]
+    before = [t.clone() for t, _ in bufs]
+    with keep_rows(lambda: bufs, torch.tensor([True, False, True])):
+        for t, _ in bufs:
             t.add_(100)
-    assert vec.tolist() == [0.0, 101.0, 2.0]
-    assert mat.tolist() == [[0.0, 1.0], [102.0, 103.0], [4.0, 5.0]]
-    assert float(scalar) == 105.0 and bool((other == 101).all())
-    with keep_rows(lambda: [vec], torch.zeros(3, dtype=torch.bool)):
-        vec.mul_(2)
-    assert vec.tolist() == [0.0, 202.0, 4.0]
+    # by hand: a's layout: weight (3, 1, 2) at 0, bias (3, 2) at 16, weight (3, 2, 1) at 32, bias (3, 1) at 48;
+    # b's: weight (3, 2, 1) at 0, bias (3, 1) at 16
+    kept_a = [0, 1, 4, 5, 16, 17, 20, 21, 32, 33, 36, 37, 48, 50]
+    kept_b = [0, 1, 4, 5, 16, 18]
+    for (t, _), old, kept in zip(bufs, before, (kept_a, kept_a, kept_b)):
+        moved = [i for i in range(len(t)) if i not in kept]
+        assert torch.equal(t[kept], old[kept]) and torch.equal(t[moved], old[moved] + 100)
+    with keep_rows(lambda: bufs, torch.zeros(3, dtype=torch.bool)):
+        a.flat.data.mul_(2)
+    assert torch.equal(a.flat.data[kept_a], 2 * before[0][kept_a])
+
+
+def test_seed_rows_computes_those_seeds_alone_with_the_whole_batchs_bits():
+    """Outputs and gradients of seeds 0 and 2 of 3 as the whole batch's, bit for bit; seed 1's
+    gradient rows untouched (zero); the input must have their count of rows; afterwards every
+    seed again. Checked against each seed's own nn.Sequential."""
+    make = lambda: nn.Sequential(nn.Linear(3, 4), nn.ReLU(), nn.Linear(4, 2))  # noqa: E731
+    stack = SeedStack(build_per_seed(make, [0, 1, 2]))
+    x = torch.rand(3, 5, 3)
+    stack(x).square().sum().backward()
+    whole = [p.grad.clone() for p in stack.parameters()]
+    stack.flat.grad.zero_()
+    rows = torch.tensor([0, 2])
+    with seed_rows(stack, rows):
+        y = stack(x[rows])
+        with pytest.raises(ValueError, match=r"expected 2 seeds at dim 0, got input of shape \(3, 5, 3\)"):
+            stack(x)
+    y.square().sum().backward()
+    plain = build_per_seed(make, [2])[0]
+    torch.testing.assert_close(y[1], plain(x[2]))   # seed 2's own network
+    assert torch.equal(y, stack(x)[rows])
+    for g, w in zip((p.grad for p in stack.parameters()), whole):
+        assert torch.equal(g[rows], w[rows]) and not bool(g[1].any())
+    assert stack(x).shape == (3, 5, 2)   # every seed again
+
+
+def test_learned_buffers_refuse_a_network_with_parameters_outside_its_stacks():
+    env, agent = build(resolve_config(env="liquidation", agent="ddpg", seeds=[0, 1], episodes=1))
+    assert len(agent.learned_buffers()) == 4   # actor, critic and their targets; Adam's moments not made yet
+    agent.nets["extra"] = nn.Linear(2, 2)
+    with pytest.raises(TypeError, match="parameters outside its SeedStacks"):
+        agent.learned_buffers()
 
 
 def test_each_seeds_initial_weights_come_from_its_learner_stream_by_hand():

@@ -29,15 +29,18 @@ What would couple seeds is done here instead:
 
 Seeds in a batch move in lock-step: the collector only ever drops finished seeds,
 so every active seed has taken the same number of steps, and one step counter
-serves them all. A finished seed is frozen: its rows of every parameter, target
-and optimiser state are put back after each update (``keep_rows``), so its saved
+serves them all. A finished seed is frozen: the updates are computed for the active
+seeds alone (``seed_rows``: a run's seeds finish apart, liquidation's learners with
+up to half of the batched steps after the first seed finished, in the seed report's
+runs), and its rows of every parameter, target and optimiser state, which Adam and the
+target updates touch, are put back after each update (``keep_rows``), so its saved
 networks are the ones it finished with.
 """
 from __future__ import annotations
 
 import contextlib
 import copy
-from typing import Callable, Iterable, List, Sequence
+from typing import Callable, Iterable, List, Optional, Sequence, Tuple
 
 import torch
 from tensordict import TensorDict
@@ -65,14 +68,19 @@ class SeedLinear(nn.Module):
     faster forward + backward at 64 x 256 x 256 here) -- and bias (S, out); input
     (S, ..., in) -> (S, ..., out), one ``baddbmm``."""
 
+    rows: Optional[torch.Tensor] = None   # the seeds a forward is for (``seed_rows``); None: all
+
     def __init__(self, layers: List[nn.Linear]):
         super().__init__()
         self.weight = nn.Parameter(torch.stack([layer.weight.detach().T for layer in layers]).contiguous())
         self.bias = nn.Parameter(torch.stack([layer.bias.detach() for layer in layers]))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        S, _, out = self.weight.shape
-        y = torch.baddbmm(self.bias.unsqueeze(1), x.reshape(S, -1, x.shape[-1]), self.weight)
+        weight, bias = self.weight, self.bias
+        if self.rows is not None:   # their rows alone; backward adds their gradient into those rows
+            weight, bias = weight.index_select(0, self.rows), bias.index_select(0, self.rows)
+        S, _, out = weight.shape
+        y = torch.baddbmm(bias.unsqueeze(1), x.reshape(S, -1, x.shape[-1]), weight)
         return y.view(*x.shape[:-1], out)
 
 
@@ -112,6 +120,14 @@ class FlatParams:
             self.placed.append((owner, leaf, shared, shared.grad, shared.data_ptr()))
         self.param = nn.Parameter(self.data, requires_grad=grad)
         self.param.grad = self.grad
+
+    def places(self, seeds: torch.Tensor) -> torch.Tensor:
+        """Where in the buffer the elements of ``seeds`` (indices) lie: every parameter's rows of them."""
+        out = []
+        for offset, shape in self.spans:
+            per = shape[1:].numel()
+            out.append((offset + seeds[:, None] * per + torch.arange(per)).flatten())
+        return torch.cat(out)
 
     @staticmethod
     def view(buffer: torch.Tensor, offset: int, shape: torch.Size) -> torch.Tensor:
@@ -189,6 +205,8 @@ class SeedStack(nn.Module):
     forward + backward took 780 us that way and 250 us as batched matrix products,
     forward alone 300 us and 43 us."""
 
+    rows: Optional[torch.Tensor] = None   # as SeedLinear's
+
     def __init__(self, nets: List[nn.Module]):
         super().__init__()
         self.net = copy.deepcopy(nets[0])
@@ -201,9 +219,30 @@ class SeedStack(nn.Module):
         self.flat = FlatParams(self.net)
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
-        if inputs[0].shape[0] != self.num_seeds:
-            raise ValueError(f"expected {self.num_seeds} seeds at dim 0, got input of shape {tuple(inputs[0].shape)}")
+        seeds = self.num_seeds if self.rows is None else len(self.rows)
+        if inputs[0].shape[0] != seeds:
+            raise ValueError(f"expected {seeds} seeds at dim 0, got input of shape {tuple(inputs[0].shape)}")
         return self.net(*inputs)
+
+
+@contextlib.contextmanager
+def seed_rows(nets: nn.Module, rows: Optional[torch.Tensor]):
+    """Inside, every stack in ``nets`` computes for seeds ``rows`` (long indices) alone: inputs
+    (len(rows), ...), outputs likewise, and backward adds gradients into those rows only. Each
+    seed's arithmetic is the same as in the whole batch (a seed's result never depends on its
+    batch), so an update of the active seeds alone gives them the bits the whole batch's would,
+    for the work of fewer seeds. None: all seeds, the plain path."""
+    if rows is None:
+        yield
+        return
+    modules = [m for m in nets.modules() if isinstance(m, (SeedStack, SeedLinear))]
+    for m in modules:
+        m.rows = rows
+    try:
+        yield
+    finally:
+        for m in modules:
+            m.rows = None
 
 
 def seed_mean(loss: torch.Tensor) -> torch.Tensor:
@@ -228,20 +267,23 @@ def clip_grad_norm_per_seed(params: Iterable[torch.Tensor], max_norm: float) -> 
 
 
 @contextlib.contextmanager
-def keep_rows(tensors: Callable[[], Sequence[torch.Tensor]], rows: torch.Tensor):
-    """Whatever happens inside, seeds ``rows`` (bool (S,)) of every tensor ``tensors()``
-    lists that has a leading seed dimension are as before (finished seeds stay frozen).
+def keep_rows(buffers: Callable[[], Sequence[Tuple[torch.Tensor, FlatParams]]], rows: torch.Tensor):
+    """Whatever happens inside, seeds ``rows`` (bool (S,)) of every flat buffer ``buffers()``
+    lists, each with the layout it has (a stack's parameters, its target's, Adam's moments of
+    them), are as before (finished seeds stay frozen): one gather and one scatter a buffer.
     Free when no row is kept."""
     if not bool(rows.any()):
         yield
         return
-    S = rows.shape[0]
-    tensors = [t for t in tensors() if t.dim() > 0 and t.shape[0] == S]
-    saved = [t[rows].clone() for t in tensors]
+    seeds, places, saved = rows.nonzero()[:, 0], {}, []
+    for t, flat in buffers():
+        if id(flat) not in places:   # a layout's positions of those seeds' elements, found once
+            places[id(flat)] = flat.places(seeds)
+        saved.append((t, places[id(flat)], t[places[id(flat)]]))
     yield
     with torch.no_grad():
-        for t, s in zip(tensors, saved):
-            t[rows] = s
+        for t, at, s in saved:
+            t.index_copy_(0, at, s)
 
 
 class Target(nn.Module):
@@ -318,7 +360,9 @@ class SeedBatchedLearner:
     """Agent base for S seeds learning as one: the step counter, the replay memory, the
     transition as stored, per-seed update counts, and freezing finished seeds.
     A subclass builds its networks (``nets``, targets included) and ``optimizers`` and
-    defines ``act``, ``update(batch)`` (one gradient step for all seeds) and
+    defines ``act``, ``update(batch)`` (one gradient step for the seeds of ``batch``: all, or
+    the active ones while others have finished, ``updating``; a tensor of every seed's it draws
+    itself it takes through ``of_updating``) and
     ``wants_update()``; ``before_updates()`` if it has per-step bookkeeping."""
 
     optimizers: List[SeedAdam]
@@ -331,6 +375,7 @@ class SeedBatchedLearner:
         self.steps = 0                                    # env steps of every active seed
         self.updates = torch.zeros(S, dtype=torch.long)   # gradient steps per seed
         self.new_episode = torch.ones(S, dtype=torch.bool)
+        self.updating: Optional[torch.Tensor] = None   # during an update: the seeds it is for (None: all)
 
     def stored(self, td) -> TensorDict:
         """The transition (S,) to store: observation, action, reward, next observation, flags."""
@@ -340,10 +385,14 @@ class SeedBatchedLearner:
             "next": {"observation": nxt.get("observation"), "reward": learning_reward(td, self.cfg.gamma),
                      "done": nxt.get("done"), "terminated": nxt.get("terminated")}}, batch_size=td.batch_size))
 
-    def learned_tensors(self) -> List[torch.Tensor]:
-        """Everything an update changes: the networks and targets, the optimisers' state."""
-        return list(self.nets.state_dict(keep_vars=True).values()) + [
-            t for o in self.optimizers for t in o.seed_tensors()]
+    def learned_buffers(self) -> List[Tuple[torch.Tensor, FlatParams]]:
+        """Everything an update changes, as flat buffers with their layouts: every stack's parameters
+        (the networks' and the targets'), the optimisers' moments (their step count is one scalar)."""
+        stacks = [m for m in self.nets.modules() if isinstance(m, SeedStack)]
+        if sum(p.numel() for m in stacks for p in m.parameters()) != sum(p.numel() for p in self.nets.parameters()):
+            raise TypeError("a network has parameters outside its SeedStacks: a finished seed's would not be kept")
+        return [(m.flat.data, m.flat) for m in stacks] + [
+            (state[k], o.flat) for o in self.optimizers for state in o.state.values() for k in ("exp_avg", "exp_avg_sq")]
 
     def observe(self, td, active=None) -> None:
         S = len(self.seeds)
@@ -351,12 +400,23 @@ class SeedBatchedLearner:
         self.replay.add(self.stored(td))
         self.steps += 1
         n = self.wants_update()
-        with keep_rows(self.learned_tensors, ~active):
+        # finished seeds take no part: the updates are computed for the active ones alone (a run's
+        # seeds finish apart, liquidation's up to half its steps before the last), and whatever
+        # touches every row (Adam, the targets) is undone on the finished ones
+        self.updating = None if bool(active.all()) else active.nonzero()[:, 0]
+        with keep_rows(self.learned_buffers, ~active):
             self.before_updates()
             for _ in range(n):
-                self.update(self.replay.sample(self.batch_size))
+                batch = self.replay.sample(self.batch_size)   # every seed draws, active or not: its stream's place
+                with seed_rows(self.nets, self.updating):
+                    self.update(self.of_updating(batch))
+        self.updating = None
         self.updates += n * active
         self.new_episode = td.get("next").get("done").reshape(S).clone()
+
+    def of_updating(self, t):
+        """The rows (S, ...) of ``t`` the update in progress is for: the active seeds' (``updating``)."""
+        return t if self.updating is None else t[self.updating]
 
     def wants_update(self) -> int:
         """Gradient steps to take after this env step (0: none)."""

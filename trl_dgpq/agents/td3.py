@@ -164,7 +164,7 @@ class TD3(SeedBatchedLearner):
 
     def update(self, batch: TensorDict) -> None:
         S, B = batch.shape
-        noise = self.smooth_rng.normal(B, self.low.numel()).to(torch.float32)
+        noise = self.of_updating(self.smooth_rng.normal(B, self.low.numel())).to(torch.float32)  # every seed draws
         self.critic_optim.zero_grad()
         seed_mean(self.value_loss(batch, noise)).backward()
         self.critic_optim.step()
