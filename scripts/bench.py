@@ -477,7 +477,9 @@ def bench_against_published(args):
     from trl_dgpq.commands.reproduce import same_sections
 
     run = load_run(Path(args.run))
-    pub = published.load(args.publication, args.experiment)
+    # the baseline: the publication's rows, or another run's (the same settings by the code before a change)
+    pub = load_run(Path(args.baseline)) if args.baseline else published.load(args.publication, args.experiment)
+    against = args.baseline or args.publication
     mine, theirs = same_sections(run.config), same_sections(pub.config)
     for c in (mine, theirs):        # neither changes a row: a shorter or longer run of the same plan
         for k in ("episodes", "checkpoint_every", "max_memory"):
@@ -486,14 +488,16 @@ def bench_against_published(args):
     if differ:
         raise SystemExit(f"{args.run} is not {args.experiment}'s settings: {', '.join(differ)} differ")
     if "cpu_s" not in pub.df:
-        raise SystemExit(f"{args.publication} keeps no cpu_s for {args.experiment} (published before it was kept)")
+        raise SystemExit(f"{against} keeps no cpu_s for {args.experiment} (published before it was kept)")
     n = int(min(d.groupby("seed")["episode"].max().min() for d in (run.df, pub.df)))   # every seed has both
     ours, pubs = (d[d.episode <= n].sort_values(["seed", "episode"]).reset_index(drop=True) for d in (run.df, pub.df))
     cols = [c for c in pubs.columns if c not in ("wall_s", "cpu_s", "us_per_step", "job", "env_steps")]
-    with tempfile.TemporaryDirectory() as tmp:      # written and read back as the publication's rows are
-        ours[cols].to_csv(Path(tmp) / "rows.csv", index=False, float_format=published.FLOAT_FORMAT)
-        written = read_csv_exact(Path(tmp) / "rows.csv")
-    differ = [c for c in cols if not written[c].equals(pubs[c])]
+    def as_published(df):   # written and read back as the publication's rows are
+        with tempfile.TemporaryDirectory() as tmp:
+            df[cols].to_csv(Path(tmp) / "rows.csv", index=False, float_format=published.FLOAT_FORMAT)
+            return read_csv_exact(Path(tmp) / "rows.csv")
+    written, theirs_rows = as_published(ours), as_published(pubs) if args.baseline else pubs
+    differ = [c for c in cols if not written[c].equals(theirs_rows[c])]
     # per episode, the batch's CPU (each row holds its seed's share)
     cpu_pub, cpu_run = (d.groupby("episode")["cpu_s"].sum() for d in (pubs, ours))
     windows = []
@@ -504,17 +508,19 @@ def bench_against_published(args):
                             ratio=round(float(p / o), 2)))
     p, o = float(pubs.cpu_s.sum()), float(ours.cpu_s.sum())
     total = dict(published_cpu_min=round(p / 60, 1), run_cpu_min=round(o / 60, 1), ratio=round(p / o, 2))
-    print(f"{args.experiment}: {args.run} against {args.publication}, episodes 1-{n} of {len(pubs.seed.unique())} seeds "
+    print(f"{args.experiment}: {args.run} against {against}, episodes 1-{n} of {len(pubs.seed.unique())} seeds "
           f"({len(pubs):,} rows)")
     print(f"  the same rows in {', '.join(cols)}: {not differ}" + (f" (differ: {', '.join(differ)})" if differ else ""))
-    print(f"  {'episodes':>11} {'published CPU s':>16} {'run CPU s':>10} {'ratio':>6}")
+    print(f"  {'episodes':>11} {'baseline CPU s' if args.baseline else 'published CPU s':>16} {'run CPU s':>10} "
+          f"{'ratio':>6}")
     for w in windows:
         print(f"  {w['episodes']:>11} {w['published_cpu_s']:>16,.1f} {w['run_cpu_s']:>10,.1f} {w['ratio']:>6.2f}")
     print(f"  all: {total['published_cpu_min']:,.1f} against {total['run_cpu_min']:,.1f} min of CPU "
-          f"({total['ratio']:.2f}x); the run's commit {', '.join(published.commits_of(run))}, the publication's "
-          f"{', '.join(published.commits_of(pub))}")
+          f"({total['ratio']:.2f}x); the run's commit {', '.join(published.commits_of(run))}, the "
+          f"{'baseline' if args.baseline else 'publication'}'s {', '.join(published.commits_of(pub))}")
     out = Path(args.out or "bench-against-published.json")
-    out.write_text(json.dumps(dict(meta=dict(experiment=args.experiment, run=str(args.run), publication=str(args.publication),
+    out.write_text(json.dumps(dict(meta=dict(experiment=args.experiment, run=str(args.run), publication=str(against),
+                                             baseline_is_a_run=bool(args.baseline),
                                              episodes=n, columns=cols, run_commits=published.commits_of(run),
                                              statistic="CPU time summed over the rows (each a seed's share of its batch)"),
                                    same_rows=not differ, differ=differ, windows=windows, total=total), indent=1))
@@ -634,6 +640,8 @@ def main(argv=None):
     ap.add_argument("--run", required=True, metavar="DIR", help="the run's folder (train.py --out)")
     ap.add_argument("--experiment", required=True, help="the published experiment it runs again")
     ap.add_argument("--publication", default="results/report", metavar="DIR")
+    ap.add_argument("--baseline", default=None, metavar="DIR", help="another run's folder in place of the "
+                    "publication (the same settings run by the code before a change): its rows and CPU time")
     ap.add_argument("--window", type=int, default=100, help="episodes per row of the table")
     ap.add_argument("--out", default=None)
     ap.set_defaults(fn=bench_against_published)

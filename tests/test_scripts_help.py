@@ -67,3 +67,29 @@ def test_bench_against_published_finds_the_same_rows_and_a_changed_one(tmp_path,
     assert got["meta"]["episodes"] == 3 and [w["episodes"] for w in got["windows"]] == ["1-2", "3-3"]
     with pytest.raises(SystemExit, match="is not x's settings: run.seeds differ"):
         bench([*argv, "--run", str(tmp_path / "b")])
+
+
+def test_bench_against_published_takes_another_run_as_its_baseline(tmp_path, capsys):
+    """--baseline: a run of the same settings in place of the publication, both runs' floats written
+    as the publication writes them before they are compared (a full-precision row against itself
+    is the same row); one with other settings refused by name."""
+    import json
+
+    import pandas as pd
+
+    from tests.test_run import run
+    for name, seeds in (("a", "0-1"), ("same", "0-1"), ("b", "0-2")):
+        assert run("--seeds", seeds, "--episodes", 3, "--out", tmp_path / name) == 0
+    bench = runpy.run_path(str(SCRIPTS / "bench.py"), run_name="bench")["main"]
+    argv = ["against-published", "--experiment", "x", "--run", str(tmp_path / "a"), "--out", str(tmp_path / "r.json")]
+    bench([*argv, "--baseline", str(tmp_path / "same")])
+    got = json.loads((tmp_path / "r.json").read_text())
+    assert got["same_rows"] and got["meta"]["baseline_is_a_run"] and got["meta"]["publication"] == str(tmp_path / "same")
+    assert "baseline CPU s" in capsys.readouterr().out
+    rows = pd.read_csv(tmp_path / "same" / "episodes.csv")
+    rows.loc[2, "return"] += 1.0
+    rows.to_csv(tmp_path / "same" / "episodes.csv", index=False)
+    bench([*argv, "--baseline", str(tmp_path / "same")])
+    assert json.loads((tmp_path / "r.json").read_text())["differ"] == ["return"]
+    with pytest.raises(SystemExit, match="is not x's settings: run.seeds differ"):
+        bench([*argv, "--baseline", str(tmp_path / "b")])
