@@ -527,6 +527,33 @@ def bench_against_published(args):
     print(f"wrote {out}")
 
 
+def bench_finished_seeds(args):
+    """How much of each published experiment's batch went on after some of its seeds had finished:
+    a batch steps all its seeds in lock-step until its last one finishes (its batched steps: the
+    most env steps of any seed), so of S x those seed-steps, the ones its seeds did not take were
+    taken by finished seeds, which learn nothing. Per experiment, largest CPU first."""
+    from trl_dgpq.analysis import published
+    from trl_dgpq.commands.reproduce import spent_seconds
+    rows = []
+    for name in published.manifest(args.publication)["experiments"]:
+        df = published.load(args.publication, name, columns=("cpu_s", "wall_s")).df
+        per_seed = df.groupby("seed")["steps"].sum()
+        batched = int(per_seed.max())
+        rows.append(dict(experiment=name, agent=published.recorded_config(args.publication, name)["run"]["agent"],
+                         seeds=len(per_seed), batched_steps=batched, seed_steps=int(per_seed.sum()),
+                         finished_share=round(1 - float(per_seed.sum()) / (len(per_seed) * batched), 3),
+                         cpu_min=round(float(spent_seconds(df).sum()) / 60, 1)))
+    rows.sort(key=lambda r: -r["cpu_min"])
+    print(f"{'experiment':>36} {'agent':>6} {'S':>3} {'batched steps':>14} {'finished share':>15} {'CPU min':>8}  "
+          f"(finished share: of S x batched steps, those its finished seeds took)")
+    for r in rows[:args.top]:
+        print(f"{r['experiment']:>36} {r['agent']:>6} {r['seeds']:>3} {r['batched_steps']:>14,} "
+              f"{r['finished_share']:>15.2f} {r['cpu_min']:>8.1f}")
+    out = Path(args.out or "bench-finished-seeds.json")
+    out.write_text(json.dumps(dict(meta=dict(publication=str(args.publication)), results=rows), indent=1))
+    print(f"wrote {out}")
+
+
 def _neural():
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import bench_neural
@@ -645,6 +672,12 @@ def main(argv=None):
     ap.add_argument("--window", type=int, default=100, help="episodes per row of the table")
     ap.add_argument("--out", default=None)
     ap.set_defaults(fn=bench_against_published)
+    fs = sub.add_parser("finished-seeds", help="a publication's experiments: the share of their batches' steps "
+                        "taken by seeds that had finished")
+    fs.add_argument("--publication", default="results/report", metavar="DIR")
+    fs.add_argument("--top", type=int, default=25, help="rows printed (largest CPU first; the JSON keeps all)")
+    fs.add_argument("--out", default=None)
+    fs.set_defaults(fn=bench_finished_seeds)
     sp = sub.add_parser("step-parts", help="a learning step of DDPG and DQN: the update and the work around it")
     sp.add_argument("--threads", type=int, default=1)
     sp.add_argument("--warmup", type=int, default=1_100)

@@ -93,3 +93,24 @@ def test_bench_against_published_takes_another_run_as_its_baseline(tmp_path, cap
     assert json.loads((tmp_path / "r.json").read_text())["differ"] == ["return"]
     with pytest.raises(SystemExit, match="is not x's settings: run.seeds differ"):
         bench([*argv, "--baseline", str(tmp_path / "b")])
+
+
+def test_bench_finished_seeds_counts_by_hand(tmp_path):
+    """Two seeds of 30 and 10 env steps: the batch stepped 30 times, 20 of its 60 seed-steps by the
+    finished seed (1/3); CPU the rows' cpu_s summed."""
+    import json
+
+    import pandas as pd
+
+    from trl_dgpq.analysis import published
+    data = tmp_path / "pub" / published.DATA
+    data.mkdir(parents=True)
+    pd.DataFrame(dict(seed=[0, 0, 1], episode=[1, 2, 1], steps=[20, 10, 10], wall_s=[9.0, 9.0, 9.0],
+                      cpu_s=[30.0, 60.0, 30.0])).to_csv(data / "x.csv.xz", index=False)
+    (data / "x.json").write_text(json.dumps(dict(run=dict(agent="td3", env="liquidation", seeds=[0, 1]))))
+    (data / published.MANIFEST).write_text(json.dumps(dict(experiments=["x"])))
+    bench = runpy.run_path(str(SCRIPTS / "bench.py"), run_name="bench")["main"]
+    bench(["finished-seeds", "--publication", str(tmp_path / "pub"), "--out", str(tmp_path / "f.json")])
+    got = json.loads((tmp_path / "f.json").read_text())["results"]
+    assert got == [dict(experiment="x", agent="td3", seeds=2, batched_steps=30, seed_steps=40, finished_share=0.333,
+                        cpu_min=2.0)]
