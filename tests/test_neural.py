@@ -202,6 +202,27 @@ def test_a_seed_learning_beside_finished_ones_is_the_seed_alone(cfg):
     assert int(alone.updates[0]) > int(batch.updates[2]) > int(batch.updates[0]) > 0
 
 
+def test_the_last_seed_learning_at_ddpgs_own_sizes_is_the_seed_in_the_whole_batch():
+    """At DDPG's liquidation widths (24, 48) and minibatch of 128, torch's batched product of one
+    matrix has other last bits than the same matrix's in a batch of more: the last seed learning
+    (seeds 0 and 2 finished at steps 140 and 150) must still be updated beside another row, so
+    that its networks and Adam's moments are those of the batch where no seed finished."""
+    cfg = dict(env="liquidation", agent="ddpg", batch_size=128, buffer_size=1_000, episodes=10)
+
+    def run(stop):
+        env, agent = build(resolve_config(seeds=[0, 1, 2], **cfg))
+        td, active = env.reset(), torch.ones(3, dtype=torch.bool)
+        for t in range(170):
+            for i, at in stop.items():
+                active[i] &= t != at
+            td["action"] = agent.act(td)
+            out, td = env.step_and_maybe_reset(td)
+            agent.observe(out, active)
+        return [x[1] for x in agent.nets.state_dict().values() if x.dim() > 1] + [
+            x[1] for o in agent.optimizers for x in o.seed_tensors()]
+    assert all(torch.equal(a, b) for a, b in zip(run({0: 140, 2: 150}), run({})))
+
+
 @pytest.mark.parametrize("cfg", [DQN_SMALL, DDPG_SMALL, TD3_SMALL], ids=["dqn", "ddpg", "td3"])
 def test_learners_leave_torchs_global_generator_alone(cfg):
     torch.manual_seed(5)

@@ -403,7 +403,7 @@ class SeedBatchedLearner:
         # finished seeds take no part: the updates are computed for the active ones alone (a run's
         # seeds finish apart, liquidation's up to half its steps before the last), and whatever
         # touches every row (Adam, the targets) is undone on the finished ones
-        self.updating = None if bool(active.all()) else active.nonzero()[:, 0]
+        self.updating = None if bool(active.all()) else self.rows_to_update(active)
         with keep_rows(self.learned_buffers, ~active):
             self.before_updates()
             for _ in range(n):
@@ -413,6 +413,18 @@ class SeedBatchedLearner:
         self.updating = None
         self.updates += n * active
         self.new_episode = td.get("next").get("done").reshape(S).clone()
+
+    @staticmethod
+    def rows_to_update(active: torch.Tensor) -> torch.Tensor:
+        """The seeds an update is computed for while some have finished: the active ones, and where
+        one is left a finished one beside it (put back after: ``keep_rows``). torch's batched product
+        of a single matrix takes another path, whose last bits differ from the same matrix's in a
+        batch (measured at DDPG's and TD3's liquidation sizes, not at the F-16 DQN's): with two,
+        the last seed's update is the one it would have in the whole batch."""
+        rows = active.nonzero()[:, 0]
+        if len(rows) == 1 and len(active) > 1:
+            rows = torch.cat([rows, (~active).nonzero()[:1, 0]]).sort().values
+        return rows
 
     def of_updating(self, t):
         """The rows (S, ...) of ``t`` the update in progress is for: the active seeds' (``updating``)."""
