@@ -474,3 +474,34 @@ def test_course_initial_weights_take_both_signs():
             if name.endswith("weight"):
                 lim = 3e-3 if w.shape[2] == 1 or (net is agent.actor and w.shape[2] == 2) else 1 / w.shape[2] ** 0.5
                 assert float(w.min()) < -0.8 * lim and float(w.max()) > 0.8 * lim, name
+
+
+def test_rows_to_update_by_hand():
+    """The active seeds; one left: it and the first finished one, in seed order; a batch of one
+    seed: itself. (Speed only: the whole batch would give the same bits.)"""
+    from trl_dgpq.agents.neural import SeedBatchedLearner
+    rows = lambda *a: SeedBatchedLearner.rows_to_update(torch.tensor(a)).tolist()  # noqa: E731
+    assert rows(True, False, True, False) == [0, 2]
+    assert rows(False, False, True, False) == [0, 2]
+    assert rows(False, True, False, False) == [0, 1]
+    assert rows(True, False) == [0, 1] and rows(False, True) == [0, 1]
+    assert rows(True) == [0]
+
+
+def test_an_update_with_finished_seeds_is_computed_for_the_active_ones_only():
+    """While seed 0 of 3 has finished, each update gets the minibatch of seeds 1 and 2 (2, B) and
+    the stacks compute those rows; with every seed active, all of them; after, nothing is left set."""
+    env, agent = build(resolve_config(env="liquidation", agent="ddpg", seeds=[0, 1, 2], episodes=1, batch_size=4,
+                                      buffer_size=50))
+    seen, update = [], agent.update
+    agent.update = lambda batch: (seen.append((tuple(batch.shape), agent.updating, agent.actor.mlp.rows)),
+                                  update(batch))
+    td = env.reset()
+    for active in ([True] * 3,) * 5 + ([False, True, True],) * 2:
+        td["action"] = agent.act(td)
+        out, td = env.step_and_maybe_reset(td)
+        agent.observe(out, torch.tensor(active))
+    assert [s for s, _, _ in seen] == [(3, 4), (3, 4), (2, 4), (2, 4)]
+    assert seen[0][1] is None and seen[0][2] is None
+    assert seen[-1][1].tolist() == [1, 2] and seen[-1][2].tolist() == [1, 2]
+    assert agent.updating is None and agent.actor.mlp.rows is None
