@@ -404,13 +404,15 @@ class SeedBatchedLearner:
         # seeds finish apart, liquidation's up to half its steps before the last), and whatever
         # touches every row (Adam, the targets) is undone on the finished ones
         self.updating = None if bool(active.all()) else self.rows_to_update(active)
-        with keep_rows(self.learned_buffers, ~active):
-            self.before_updates()
-            for _ in range(n):
-                batch = self.replay.sample(self.batch_size)   # every seed draws, active or not: its stream's place
-                with seed_rows(self.nets, self.updating):
-                    self.update(self.of_updating(batch))
-        self.updating = None
+        try:
+            with keep_rows(self.learned_buffers, ~active):
+                self.before_updates()
+                for _ in range(n):
+                    batch = self.replay.sample(self.batch_size)   # every seed draws, active or not: its stream's place
+                    with seed_rows(self.nets, self.updating):
+                        self.update(self.of_updating(batch))
+        finally:   # as seed_rows' rows: never left set past the updates, even by an error in one
+            self.updating = None
         self.updates += n * active
         self.new_episode = td.get("next").get("done").reshape(S).clone()
 
