@@ -103,6 +103,34 @@ def test_state_round_trips_and_a_wrong_shape_is_refused():
             r.load_state_dict(bad)
 
 
+def test_a_pair_goes_to_the_first_free_slot_found_through_blocks_of_slots():
+    """Blocks of 2 slots, capacity 5 (the last block of 1). Pairs at x = 0, 10, 20, 30, 40 with mu 9
+    and L 1 fill slots 0-4; (25, mu 0) prunes those at 20 and 30 (0 + 1 x 5 <= 9), taking slot
+    2; the next pair takes the hole left at slot 3 (block 1), the one after finds the storage full
+    and goes to slot 5, after the doubling. A hole in the last, partial block is found too."""
+    q = LipschitzQ(1, 1, 1, lipschitz=1.0, v_max=100.0, capacity=5, free_block=2)
+    a = torch.zeros(1, dtype=torch.long)
+    for k in range(5):
+        q.insert(t([[10.0 * k]]), a, t([9.0]), YES)
+    q.insert(t([[25.0]]), a, t([0.0]), YES)
+    assert q.mu[0, 0].tolist() == [9.0, 9.0, 0.0, math.inf, 9.0]
+    q.insert(t([[100.0]]), a, t([9.0]), YES)
+    q.insert(t([[200.0]]), a, t([9.0]), YES)
+    assert q.capacity == 10 and q.mu[0, 0, :7].tolist() == [9.0, 9.0, 0.0, 9.0, 9.0, 9.0, math.inf]
+    assert q.s[0, 0, :6, 0].tolist() == [0.0, 10.0, 25.0, 100.0, 40.0, 200.0]
+    r = LipschitzQ(1, 1, 1, lipschitz=1.0, v_max=100.0, capacity=5, free_block=2)
+    for k in range(5):
+        r.insert(t([[10.0 * k]]), a, t([9.0]), YES)
+    r.insert(t([[38.0]]), a, t([0.0]), YES)     # prunes 30 (slot 3) and 40 (slot 4, the last block)
+    r.insert(t([[300.0]]), a, t([9.0]), YES)
+    assert r.capacity == 5 and r.mu[0, 0].tolist() == [9.0, 9.0, 9.0, 0.0, 9.0]
+
+
+def test_free_block_must_be_positive():
+    with pytest.raises(ValueError, match=r"^free_block must be >= 1, got 0$"):
+        LipschitzQ(1, 1, 1, 1.0, 1.0, free_block=0)
+
+
 @pytest.mark.parametrize("kw, message", [
     (dict(metric="l3"), r"^metric must be one of \['l1', 'l2', 'linf'\], got 'l3'$"),
     (dict(lipschitz=0.0), r"^lipschitz must be finite and > 0, got 0.0$"),
@@ -134,8 +162,8 @@ from trl_dgpq import qhat as qhat_module  # noqa: E402
 def twins(S, A, dim, L, metric, chunk=2, fan=2, **kw):
     """A Q̂ that always scans and one that answers through an index of tiny chunks and groups from
     its first pair on, so that a few dozen pairs fill several groups."""
-    scan = LipschitzQ(S, A, dim, L, 50.0, metric, index_min=10**9, **kw)
-    index = LipschitzQ(S, A, dim, L, 50.0, metric, index_min=1, chunk=chunk, fan=fan, **kw)
+    scan = LipschitzQ(S, A, dim, L, 50.0, metric, index_min=10**9, free_block=2, **kw)
+    index = LipschitzQ(S, A, dim, L, 50.0, metric, index_min=1, chunk=chunk, fan=fan, free_block=3, **kw)
     return scan, index
 
 
@@ -156,12 +184,33 @@ def check_index_against_scan(seed, metric, dim, chunk, fan, lipschitz, grid, ins
         scan.insert(x, a, mu, mask)
         index.insert(x, a, mu, mask)
         assert torch.equal(scan.mu, index.mu) and torch.equal(scan.s, index.s)
+        check_first_free(scan, x, a, mu, mask)
+        for q in (scan, index):
+            check_free_counts(q)
         if index.index.built:
             check_chunk_copy(index)
         probe = torch.rand(S, dim, generator=g, dtype=D) * 5 - 2.5
         for at in (probe, x):
             assert torch.equal(scan(at), index(at))
     assert index.index.built > 0
+
+
+def check_first_free(q, x, a, mu, mask):
+    """Each inserted pair sits in its row's first free slot: every slot before it holds a pair."""
+    for seed in mask.nonzero()[:, 0].tolist():
+        row_mu, row_s = q.mu[seed, a[seed]], q.s[seed, a[seed]]
+        (at,) = ((row_mu == mu[seed]) & (row_s == x[seed]).all(-1)).nonzero()[:, 0].tolist()
+        assert torch.isfinite(row_mu[:at]).all()
+
+
+def check_free_counts(q):
+    """The free slots counted per block of each row are the storage's, counted one slot at a time."""
+    if q._free is None:
+        return
+    mu = q.mu.reshape(q.S * q.A, -1).tolist()
+    B = q.free_block
+    want = [[sum(math.isinf(m) for m in row[b:b + B]) for b in range(0, len(row), B)] for row in mu]
+    assert q._free.tolist() == want
 
 
 def check_chunk_copy(q):
@@ -433,3 +482,43 @@ def test_float32_pairs_go_into_float64_storage_through_the_index_too():
                      torch.tensor([0.5 * k], dtype=torch.float32), YES)
             q(t([[0.25]]))
     assert index.index.built and torch.equal(scan.mu, index.mu) and torch.equal(scan(t([[3.3]])), index(t([[3.3]])))
+
+
+def test_the_last_answer_through_the_index_bounds_the_next_query():
+    """After a query at x through the index, the hint at x' is that answer plus L d(x, x') (by hand,
+    l1, L 2); a load forgets it (another Q̂'s answers bound nothing)."""
+    q = LipschitzQ(1, 2, 2, 2.0, 50.0, "l1", index_min=1, chunk=2, fan=2)
+    for k in range(6):
+        q.insert(t([[float(k), 0.0]]), torch.tensor([k % 2]), t([float(k)]), YES)
+    assert q._hint(t([[0.0, 0.0], [0.0, 0.0]])) is None
+    got = q(t([[2.0, 1.0]]))          # action 0 holds x 0, 2, 4 (mu 0, 2, 4): min 2 + 2 x 1 = 4;
+    assert got.tolist() == [[4.0, 5.0]]   # action 1 holds x 1, 3, 5 (mu 1, 3, 5): min 1 + 2 x 2 = 5
+    hint = q._hint(t([[2.5, 0.0], [2.5, 0.0]]))
+    assert hint.tolist() == [4.0 + 2.0 * 1.5, 5.0 + 2.0 * 1.5]
+    q.load_state_dict(q.state_dict())
+    assert q._hint(t([[2.5, 0.0], [2.5, 0.0]])) is None
+
+
+def test_a_hint_narrows_what_the_index_opens_and_not_its_answer(monkeypatch):
+    """64 pairs at x = 0..63 with mu 5 + |x - 48| / 96 (L 1: none bounds another), in chunks of 2,
+    groups of 2. At 10.5 the minimum is pair 11's, 5 + 37 / 96 + 0.5; each box's rep (its least mu)
+    is its pair nearest 48, far from 10.5, so the reps' bound opens more boxes on the way down than
+    a hint at the minimum does; an infinite hint is none. The answer is the same."""
+    q = LipschitzQ(1, 1, 1, 1.0, 50.0, "l1", index_min=1, chunk=2, fan=2)
+    for k in range(64):
+        q.insert(t([[float(k)]]), torch.zeros(1, dtype=torch.long), t([5.0 + abs(k - 48) / 96]), YES)
+    x = t([[10.5]])
+    s, mu = q._rows()
+    q.index._refresh(s, mu, q.width)
+    opened = []
+    real = qhat_module.ChunkIndex._open
+    monkeypatch.setattr(qhat_module.ChunkIndex, "_open", lambda self, level, r, at: (
+        opened.append(at.numel()), real(self, level, r, at))[1])
+    answers, boxes = [], []
+    least = 5.0 + 37 / 96 + 0.5
+    for hint in (None, t([math.inf]), t([least])):
+        opened.clear()
+        answers.append(q.index.envelope(x, s, mu, q.width, hint))
+        boxes.append(sum(opened))
+    assert [a.tolist() for a in answers] == [[least]] * 3
+    assert boxes[1] == boxes[0] and boxes[2] < boxes[0]

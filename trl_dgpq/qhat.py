@@ -42,7 +42,8 @@ class LipschitzQ:
 
     def __init__(self, num_seeds: int, num_actions: int, dim: int, lipschitz: float, v_max: float,
                  metric: str = "l1", capacity: int = 64, dtype=torch.float64, device=None,
-                 index_min: Optional[int] = None, chunk: Optional[int] = None, fan: Optional[int] = None):
+                 index_min: Optional[int] = None, chunk: Optional[int] = None, fan: Optional[int] = None,
+                 free_block: Optional[int] = None):
         if metric not in METRICS:
             raise ValueError(f"metric must be one of {sorted(METRICS)}, got {metric!r}")
         if not (lipschitz > 0 and math.isfinite(lipschitz)):
@@ -62,6 +63,11 @@ class LipschitzQ:
         self.index_min = -(-INDEX_SLOTS // (num_seeds * num_actions)) if index_min is None else index_min
         self._index_shape = (CHUNK if chunk is None else chunk, FAN if fan is None else fan)
         self.index = ChunkIndex(self.lipschitz, metric, *self._index_shape)
+        self.free_block = FREE_BLOCK if free_block is None else free_block
+        if self.free_block < 1:
+            raise ValueError(f"free_block must be >= 1, got {self.free_block}")
+        self._free = None   # free slots per block of ``free_block`` slots of each row; derived, rebuilt on use
+        self._last = None   # (states, values) of the last query through the index (``_hint``)
 
     @property
     def capacity(self) -> int:
@@ -82,7 +88,9 @@ class LipschitzQ:
             return x.new_full((self.S, self.A), self.v_max)
         xs = x[:, None, :].expand(self.S, self.A, self.dim).reshape(self.S * self.A, self.dim)
         if self.width >= self.index_min:
-            return self.index.envelope(xs, *self._rows(), self.width).view(self.S, self.A).clamp_max(self.v_max)
+            q = self.index.envelope(xs, *self._rows(), self.width, self._hint(xs))
+            self._last = (xs, q)
+            return q.view(self.S, self.A).clamp_max(self.v_max)
         # One cdist over the (S*A) rows of stored states; the reduction then runs over
         # the contiguous last dim. cdist copies a sliced (strided) input, so a mostly
         # used storage (over 3/4) is passed whole: unused slots have mu = +inf and drop
@@ -93,6 +101,16 @@ class LipschitzQ:
         s, mu = self._rows()
         return values(xs, s[:, :w], mu[:, :w], self.lipschitz, self.metric).amin(-1).view(self.S, self.A) \
             .clamp_max(self.v_max)
+
+    # Q̂ only falls (an insert adds a pair and prunes pairs it bounds everywhere) and is L-Lipschitz, so
+    # the last answer, at the last query's states, bounds this one: Q̂(x) <= Q̂_last(x') + L d(x, x').
+    # A step's query lies a step away from the last one, so the bound is near the answer and the index
+    # opens fewer boxes than the reps' bound alone lets it.
+    def _hint(self, xs: torch.Tensor) -> Optional[torch.Tensor]:
+        if self._last is None:
+            return None
+        x_last, q_last = self._last
+        return values(xs, x_last[:, None, :], q_last[:, None], self.lipschitz, self.metric)[:, 0]
 
     def bound(self, x: torch.Tensor, s: torch.Tensor, mu: torch.Tensor) -> torch.Tensor:
         """mu + L d(x, s) for one pair per seed: x, s ``(S, dim)``, mu ``(S,)``."""
@@ -106,21 +124,51 @@ class LipschitzQ:
             return
         self.version += 1
         x, a, mu = x[rows].to(self.s.dtype), a[rows], mu[rows].to(self.mu.dtype)   # as stored (the index copies them)
-        w = self.width
+        w, r = self.width, rows * self.A + a
+        free = self._free_blocks()
         if w >= self.index_min:
-            self.index.prune(x, rows * self.A + a, mu, *self._rows(), w)
+            self._freed(*self.index.prune(x, r, mu, *self._rows(), w))
         elif w:
             s_a, mu_a = self.s[:, :, :w][rows, a], self.mu[:, :, :w][rows, a]
             redundant = values(x, s_a, mu[:, None], self.lipschitz, self.metric) <= mu_a
             self.mu[:, :, :w][rows, a] = mu_a.masked_fill(redundant, torch.inf)
-        if w == self.capacity and not torch.isinf(self.mu[rows, a]).any(-1).all():
+            k, j = (redundant & torch.isfinite(mu_a)).nonzero(as_tuple=True)
+            self._freed(r[k], j)
+        if w == self.capacity and free[r].sum(-1).eq(0).any():
             self._grow()
-        free = torch.isinf(self.mu[:, :, :w + 1][rows, a])  # slot w is free in every row
-        slot = free.int().argmax(-1)  # first free slot
+            free = self._free_blocks()
+        slot = self._first_free(r)
         self.s[rows, a, slot] = x
         self.mu[rows, a, slot] = mu
-        self.index.inserted(rows * self.A + a, slot, x, mu)
+        free[r, slot // self.free_block] -= 1
+        self.index.inserted(r, slot, x, mu)
         self.width = max(w, int(slot.max()) + 1)
+
+    # Finding a row's first free slot by scanning it cost O(width) an insert, most of an insert at
+    # 10^5 slots; a count of free slots per block of each row finds the block, then one block is read.
+    def _free_blocks(self) -> torch.Tensor:
+        """Free slots in each block of ``free_block`` slots of each row, (S * A, blocks) int64;
+        the last block counts only the slots within the capacity."""
+        if self._free is None:
+            B, rows = self.free_block, self.S * self.A
+            free = torch.isinf(self._rows()[1])
+            free = torch.cat((free, free.new_zeros(rows, -self.capacity % B)), 1)
+            self._free = free.view(rows, -1, B).sum(-1)
+        return self._free
+
+    def _freed(self, r: torch.Tensor, slot: torch.Tensor) -> None:
+        """Slots ``slot`` of rows ``r`` were emptied: count them free."""
+        blocks = self._free.shape[1]
+        at = r * blocks + torch.div(slot, self.free_block, rounding_mode="floor")
+        self._free.view(-1).index_add_(0, at, torch.ones_like(at))
+
+    def _first_free(self, r: torch.Tensor) -> torch.Tensor:
+        """The first free slot of each row ``r`` (each has one): the first block with a free slot,
+        then the first free slot in it."""
+        B = self.free_block
+        block = (self._free[r] > 0).int().argmax(-1)
+        slots = (block[:, None] * B + torch.arange(B, device=r.device)).clamp_max(self.capacity - 1)
+        return block * B + torch.isinf(_take(self._rows()[1], r[:, None], slots)).int().argmax(-1)
 
     def _rows(self):
         """The storage as (S * A) rows: states (rows, capacity, dim) and mu (rows, capacity)."""
@@ -139,6 +187,7 @@ class LipschitzQ:
     def _grow(self) -> None:
         pad = lambda t, fill: torch.cat((t, torch.full_like(t, fill)), 2)  # noqa: E731
         self.s, self.mu = pad(self.s, 0), pad(self.mu, torch.inf)
+        self._free = None
 
     def state_dict(self) -> dict:
         """Every field, including grown storage, ``width`` and ``version``."""
@@ -151,9 +200,11 @@ class LipschitzQ:
         self.s = s.to(dtype=self.s.dtype, device=self.s.device).clone()
         self.mu = mu.to(dtype=self.mu.dtype, device=self.mu.device).clone()
         self.width, self.version = int(state["width"]), int(state["version"])
+        self._free = self._last = None
         self.index = ChunkIndex(self.lipschitz, self.metric, *self._index_shape)   # derived: rebuilt on use
 
 
+FREE_BLOCK = 256    # slots per block of the free-slot counts: an insert reads blocks/row counts and one block
 INDEX_SLOTS = 2 ** 19   # slots (rows x width) from which the index answers: below, a scan costs less
                         # (bench.py qhat-index; docs/agents/dgpq.md)
 CHUNK = 32      # pairs per chunk: its bound is checked in place of its pairs
@@ -343,13 +394,16 @@ class ChunkIndex:
         return at, (top if len(rows) == top.packed.shape[0] else top.take(rows[:, None], at))
 
     # ---------------------------------------------------------------- queries
-    def envelope(self, x: torch.Tensor, s: torch.Tensor, mu: torch.Tensor, w: int) -> torch.Tensor:
-        """min_j mu_j + L d(x_r, s_rj) of each row r (+inf for a row with no pair): x (rows, dim)."""
+    def envelope(self, x: torch.Tensor, s: torch.Tensor, mu: torch.Tensor, w: int,
+                 hint: Optional[torch.Tensor] = None) -> torch.Tensor:
+        """min_j mu_j + L d(x_r, s_rj) of each row r (+inf for a row with no pair): x (rows, dim).
+        ``hint`` (rows,), if given, is at least each row's minimum (up to rounding): it only
+        narrows which boxes are opened."""
         self._refresh(s, mu, w)
         L, rows = self.lipschitz, s.shape[0]
-        upper = (values(x, s[:, self.built:w], mu[:, self.built:w], L, self.metric).amin(-1)
-                 if w > self.built else x.new_full((rows,), torch.inf))
-        tail = upper
+        tail = (values(x, s[:, self.built:w], mu[:, self.built:w], L, self.metric).amin(-1)
+                if w > self.built else x.new_full((rows,), torch.inf))
+        upper = tail if hint is None else torch.minimum(tail, hint)
         r = torch.arange(rows, device=s.device)
         at, boxes = self._top(r)
         for level in range(len(self.levels) - 1, -1, -1):    # from the top: open what may hold the minimum
@@ -377,15 +431,19 @@ class ChunkIndex:
         return (reach <= boxes.most + slack) & torch.isfinite(boxes.most)
 
     def prune(self, x: torch.Tensor, rows: torch.Tensor, new_mu: torch.Tensor, s: torch.Tensor,
-              mu: torch.Tensor, w: int) -> None:
+              mu: torch.Tensor, w: int):
         """Set to +inf each pair of ``rows`` that (x, new_mu) makes redundant (new_mu + L d(x, s_j)
-        <= mu_j), as the full scan would: x (k, dim), rows and new_mu (k,), one insert per row."""
+        <= mu_j), as the full scan would: x (k, dim), rows and new_mu (k,), one insert per row.
+        Returns the emptied slots: their rows and slots, (n,) each."""
         self._refresh(s, mu, w)
         L = self.lipschitz
+        tail_rows = tail_slots = rows[:0]
         if w > self.built:
             st, mt = s[rows, self.built:w], mu[rows, self.built:w]
             redundant = values(x, st, new_mu[:, None], L, self.metric) <= mt
             mu[rows, self.built:w] = mt.masked_fill(redundant, torch.inf)
+            k, j = (redundant & torch.isfinite(mt)).nonzero(as_tuple=True)
+            tail_rows, tail_slots = rows[k], j + self.built
         i = torch.arange(len(rows), device=x.device)
         at, boxes = self._top(rows)
         for level in range(len(self.levels) - 1, -1, -1):    # from the top: open what may hold a redundant pair
@@ -397,8 +455,10 @@ class ChunkIndex:
         pts, m = _take(self.chunk_s, r, at), _take(self.chunk_mu, r, at)
         redundant = (values(x[i], pts, new_mu[i, None], L, self.metric) <= m) & torch.isfinite(m)
         slots = _take(self.order, r, at)
-        mu[r[:, None].expand_as(slots)[redundant], slots[redundant].long()] = torch.inf
-        self.chunk_mu.view(-1)[self._places(r, at)[redundant]] = torch.inf     # the copy too
+        r, slots = r[:, None].expand_as(slots)[redundant], slots[redundant].long()
+        mu[r, slots] = torch.inf
+        self.chunk_mu.view(-1)[self._places(rows[i], at)[redundant]] = torch.inf     # the copy too
+        return torch.cat((tail_rows, r)), torch.cat((tail_slots, slots))
 
     def _places(self, r: torch.Tensor, at: torch.Tensor) -> torch.Tensor:
         """Flat positions in ``chunk_mu`` of the pairs of chunks ``at`` of rows ``r``: (k, chunk)."""
