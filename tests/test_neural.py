@@ -223,6 +223,25 @@ def test_the_last_seed_learning_at_ddpgs_own_sizes_is_the_seed_in_the_whole_batc
     assert all(torch.equal(a, b) for a, b in zip(run({0: 140, 2: 150}), run({})))
 
 
+def test_one_seed_of_ddpg_at_its_real_sizes_learns_as_in_a_batch():
+    """DDPG at liquidation's defaults ((24, 48) networks, minibatches of 128), where torch's product
+    of one matrix rounds otherwise than a batch's: seed 1 run alone for 170 steps (40 updates) ends
+    with the networks and Adam moments it has in a batch of seeds 0-2."""
+    cfg = dict(env="liquidation", agent="ddpg", batch_size=128, buffer_size=1_000, episodes=10)
+
+    def run(seeds):
+        env, agent = build(resolve_config(seeds=seeds, **cfg))
+        td = env.reset()
+        for _ in range(170):
+            td["action"] = agent.act(td)
+            out, td = env.step_and_maybe_reset(td)
+            agent.observe(out)
+        i = seeds.index(1)
+        return [x[i] for x in agent.nets.state_dict().values() if x.dim() > 1] + [
+            x[i] for o in agent.optimizers for x in o.seed_tensors()]
+    assert all(torch.equal(a, b) for a, b in zip(run([1]), run([0, 1, 2])))
+
+
 @pytest.mark.parametrize("cfg", [DQN_SMALL, DDPG_SMALL, TD3_SMALL], ids=["dqn", "ddpg", "td3"])
 def test_learners_leave_torchs_global_generator_alone(cfg):
     torch.manual_seed(5)

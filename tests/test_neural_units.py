@@ -476,17 +476,26 @@ def test_course_initial_weights_take_both_signs():
                 assert float(w.min()) < -0.8 * lim and float(w.max()) > 0.8 * lim, name
 
 
-def test_rows_to_update_by_hand():
-    """The active seeds; one left: it and the first finished one, in seed order; a batch of one
-    seed: itself. (Speed only: the whole batch would give the same bits.)"""
-    from trl_dgpq.agents.neural import SeedBatchedLearner
-    rows = lambda *a: SeedBatchedLearner.rows_to_update(torch.tensor(a)).tolist()  # noqa: E731
-    assert rows(True, False, True, False) == [0, 2]
-    assert rows(False, False, True, False) == [0, 2]
-    assert rows(False, True, False, False) == [0, 1]
-    assert rows(True, False) == [0, 1] and rows(False, True) == [0, 1]
-    assert rows(True) == [0]
-
+@pytest.mark.parametrize("inp, out, batch", [(48, 1, 128), (256, 1, 256)])
+def test_a_stack_of_one_seed_computes_as_that_seed_in_a_batch(inp, out, batch):
+    """At DDPG's and TD3's output layers torch's product of a single matrix (a batch of one) has
+    other last bits than the same matrix's in a batch of more: a stack of one seed gives the
+    outputs and gradients (weight, bias, input) that seed gets in a stack of three."""
+    g = torch.Generator().manual_seed(inp * out)
+    layers = [nn.Linear(inp, out) for _ in range(3)]
+    with torch.no_grad():
+        for layer in layers:
+            layer.weight.copy_(torch.randn(out, inp, generator=g))
+            layer.bias.copy_(torch.randn(out, generator=g))
+    x, grad_y = torch.randn(3, batch, inp, generator=g), torch.randn(3, batch, out, generator=g)
+    results = []
+    for stack, xs, gy in ((SeedLinear(layers), x, grad_y), (SeedLinear(layers[:1]), x[:1], grad_y[:1])):
+        xs = xs.clone().requires_grad_(True)
+        y = stack(xs)
+        y.backward(gy)
+        results.append([t[0] for t in (y, stack.weight.grad, stack.bias.grad, xs.grad)])
+    for batched, alone in zip(*results):
+        assert torch.equal(batched, alone)
 
 def test_an_update_with_finished_seeds_is_computed_for_the_active_ones_only():
     """While seed 0 of 3 has finished, each update gets the minibatch of seeds 1 and 2 (2, B) and

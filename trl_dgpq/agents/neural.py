@@ -80,8 +80,15 @@ class SeedLinear(nn.Module):
         if self.rows is not None:   # their rows alone; backward adds their gradient into those rows
             weight, bias = weight.index_select(0, self.rows), bias.index_select(0, self.rows)
         S, _, out = weight.shape
-        y = torch.baddbmm(bias.unsqueeze(1), x.reshape(S, -1, x.shape[-1]), weight)
-        return y.view(*x.shape[:-1], out)
+        xs = x.reshape(S, -1, x.shape[-1])
+        if S == 1:
+            # torch's batched product of a single matrix takes another path (an mm) whose last bits
+            # differ from the same matrix's in a batch of two or more (DDPG's output layer forward,
+            # weight gradients of some widths): a seed alone is computed beside a copy of itself that
+            # takes no gradient, so that its bits are the ones it gets in any batch
+            pair = lambda t: torch.cat([t, t.detach()])  # noqa: E731
+            return torch.baddbmm(pair(bias).unsqueeze(1), pair(xs), pair(weight))[:1].view(*x.shape[:-1], out)
+        return torch.baddbmm(bias.unsqueeze(1), xs, weight).view(*x.shape[:-1], out)
 
 
 # floats in a 64-byte cache line: torch's fused Adam on CPU splits its work at whole lines and
@@ -403,7 +410,7 @@ class SeedBatchedLearner:
         # finished seeds take no part: the updates are computed for the active ones alone (a run's
         # seeds finish apart, liquidation's up to half its steps before the last), and whatever
         # touches every row (Adam, the targets) is undone on the finished ones
-        self.updating = None if bool(active.all()) else self.rows_to_update(active)
+        self.updating = None if bool(active.all()) else active.nonzero()[:, 0]
         try:
             with keep_rows(self.learned_buffers, ~active):
                 self.before_updates()
@@ -415,18 +422,6 @@ class SeedBatchedLearner:
             self.updating = None
         self.updates += n * active
         self.new_episode = td.get("next").get("done").reshape(S).clone()
-
-    @staticmethod
-    def rows_to_update(active: torch.Tensor) -> torch.Tensor:
-        """The seeds an update is computed for while some have finished: the active ones, and where
-        one is left a finished one beside it (put back after: ``keep_rows``). torch's batched product
-        of a single matrix takes another path, whose last bits differ from the same matrix's in a
-        batch (measured at DDPG's and TD3's liquidation sizes, not at the F-16 DQN's): with two,
-        the last seed's update is the one it would have in the whole batch."""
-        rows = active.nonzero()[:, 0]
-        if len(rows) == 1 and len(active) > 1:
-            rows = torch.cat([rows, (~active).nonzero()[:1, 0]]).sort().values
-        return rows
 
     def of_updating(self, t):
         """The rows (S, ...) of ``t`` the update in progress is for: the active seeds' (``updating``)."""
