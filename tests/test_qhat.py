@@ -522,3 +522,19 @@ def test_a_hint_narrows_what_the_index_opens_and_not_its_answer(monkeypatch):
         boxes.append(sum(opened))
     assert [a.tolist() for a in answers] == [[least]] * 3
     assert boxes[1] == boxes[0] and boxes[2] < boxes[0]
+
+
+def test_a_query_through_the_index_is_narrowed_by_the_last_answer(monkeypatch):
+    """The same 64 pairs: a first query at 10.5 opens the boxes the reps' bound lets through; the
+    same query again starts from the last answer (its distance 0) and opens fewer; both answer alike."""
+    q = LipschitzQ(1, 1, 1, 1.0, 50.0, "l1", index_min=1, chunk=2, fan=2)
+    for k in range(64):
+        q.insert(t([[float(k)]]), torch.zeros(1, dtype=torch.long), t([5.0 + abs(k - 48) / 96]), YES)
+    opened = []
+    real = qhat_module.ChunkIndex._open
+    monkeypatch.setattr(qhat_module.ChunkIndex, "_open", lambda self, level, r, at: (
+        opened.append(at.numel()), real(self, level, r, at))[1])
+    first = q(t([[10.5]]))
+    boxes = sum(opened)
+    opened.clear()
+    assert torch.equal(q(t([[10.5]])), first) and sum(opened) < boxes
