@@ -538,3 +538,36 @@ def test_a_query_through_the_index_is_narrowed_by_the_last_answer(monkeypatch):
     boxes = sum(opened)
     opened.clear()
     assert torch.equal(q(t([[10.5]])), first) and sum(opened) < boxes
+
+
+def test_a_nan_query_does_not_narrow_the_next_one():
+    """A query at a NaN state leaves a NaN last answer: the next query through the index is the
+    scan's all the same (a NaN hint narrows nothing)."""
+    scan, index = twins(1, 2, 1, 1.0, "l1")
+    for k in range(16):
+        for q in (scan, index):
+            q.insert(t([[k / 4]]), torch.tensor([k % 2]), t([float(k % 5)]), YES)
+    index(t([[math.nan]]))
+    assert index._hint(t([[0.8], [0.8]])).isnan().all()
+    assert torch.equal(index(t([[0.8]])), scan(t([[0.8]])))
+
+
+def test_an_infinite_mu_leaves_its_slot_free_and_a_loaded_state_brings_its_own_counts():
+    """A pair inserted with mu +inf holds no slot: the next pair takes it, as the scan of the row
+    did. A Q̂ whose counts were built loads another Q̂'s state (holes elsewhere): the counts are
+    that state's and the next pair goes to its first free slot."""
+    a = torch.zeros(1, dtype=torch.long)
+    q = LipschitzQ(1, 1, 1, lipschitz=1.0, v_max=100.0, capacity=4, free_block=2)
+    q.insert(t([[0.0]]), a, t([math.inf]), YES)
+    q.insert(t([[5.0]]), a, t([1.0]), YES)
+    assert q.mu[0, 0].tolist() == [1.0, math.inf, math.inf, math.inf]
+    check_free_counts(q)
+    other = LipschitzQ(1, 1, 1, lipschitz=1.0, v_max=100.0, capacity=4, free_block=2)
+    for k in range(4):
+        other.insert(t([[10.0 * k]]), a, t([9.0]), YES)
+    other.insert(t([[25.0]]), a, t([0.0]), YES)     # prunes 20 and 30 (slots 2, 3), takes slot 2
+    assert other.mu[0, 0].tolist() == [9.0, 9.0, 0.0, math.inf]
+    q.load_state_dict(other.state_dict())
+    q.insert(t([[100.0]]), a, t([9.0]), YES)
+    assert q.mu[0, 0].tolist() == [9.0, 9.0, 0.0, 9.0] and q.capacity == 4
+    check_free_counts(q)

@@ -89,7 +89,7 @@ class LipschitzQ:
         xs = x[:, None, :].expand(self.S, self.A, self.dim).reshape(self.S * self.A, self.dim)
         if self.width >= self.index_min:
             q = self.index.envelope(xs, *self._rows(), self.width, self._hint(xs))
-            self._last = (xs, q)
+            self._last = (xs.clone(), q)   # (xs may be a view of the caller's tensor)
             return q.view(self.S, self.A).clamp_max(self.v_max)
         # One cdist over the (S*A) rows of stored states; the reduction then runs over
         # the contiguous last dim. cdist copies a sliced (strided) input, so a mostly
@@ -140,7 +140,7 @@ class LipschitzQ:
         slot = self._first_free(r)
         self.s[rows, a, slot] = x
         self.mu[rows, a, slot] = mu
-        free[r, slot // self.free_block] -= 1
+        free[r, slot // self.free_block] -= (~torch.isinf(mu)).long()   # an infinite mu leaves its slot free
         self.index.inserted(r, slot, x, mu)
         self.width = max(w, int(slot.max()) + 1)
 
@@ -397,13 +397,13 @@ class ChunkIndex:
     def envelope(self, x: torch.Tensor, s: torch.Tensor, mu: torch.Tensor, w: int,
                  hint: Optional[torch.Tensor] = None) -> torch.Tensor:
         """min_j mu_j + L d(x_r, s_rj) of each row r (+inf for a row with no pair): x (rows, dim).
-        ``hint`` (rows,), if given, is at least each row's minimum (up to rounding): it only
-        narrows which boxes are opened."""
+        ``hint`` (rows,), if given, is at least each row's minimum (up to rounding; NaN: none): it
+        only narrows which boxes are opened."""
         self._refresh(s, mu, w)
         L, rows = self.lipschitz, s.shape[0]
         tail = (values(x, s[:, self.built:w], mu[:, self.built:w], L, self.metric).amin(-1)
                 if w > self.built else x.new_full((rows,), torch.inf))
-        upper = tail if hint is None else torch.minimum(tail, hint)
+        upper = tail if hint is None else torch.fmin(tail, hint)   # (fmin: a NaN hint, after a NaN query, is none)
         r = torch.arange(rows, device=s.device)
         at, boxes = self._top(r)
         for level in range(len(self.levels) - 1, -1, -1):    # from the top: open what may hold the minimum

@@ -85,7 +85,8 @@ class SeedLinear(nn.Module):
             # torch's batched product of a single matrix takes another path (an mm) whose last bits
             # differ from the same matrix's in a batch of two or more (DDPG's output layer forward,
             # weight gradients of some widths): a seed alone is computed beside a copy of itself that
-            # takes no gradient, so that its bits are the ones it gets in any batch
+            # takes no gradient, so that its bits are the ones it gets in a batch (tested against
+            # batches of two and three)
             pair = lambda t: torch.cat([t, t.detach()])  # noqa: E731
             return torch.baddbmm(pair(bias).unsqueeze(1), pair(xs), pair(weight))[:1].view(*x.shape[:-1], out)
         return torch.baddbmm(bias.unsqueeze(1), xs, weight).view(*x.shape[:-1], out)
