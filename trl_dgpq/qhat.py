@@ -125,22 +125,22 @@ class LipschitzQ:
         self.version += 1
         x, a, mu = x[rows].to(self.s.dtype), a[rows], mu[rows].to(self.mu.dtype)   # as stored (the index copies them)
         w, r = self.width, rows * self.A + a
-        free = self._free_blocks()
+        self._free_blocks()   # counted from the storage before pruning changes it
         if w >= self.index_min:
-            self._freed(*self.index.prune(x, r, mu, *self._rows(), w))
+            self._count_free(*self.index.prune(x, r, mu, *self._rows(), w))
         elif w:
             s_a, mu_a = self.s[:, :, :w][rows, a], self.mu[:, :, :w][rows, a]
             redundant = values(x, s_a, mu[:, None], self.lipschitz, self.metric) <= mu_a
             self.mu[:, :, :w][rows, a] = mu_a.masked_fill(redundant, torch.inf)
             k, j = (redundant & torch.isfinite(mu_a)).nonzero(as_tuple=True)
-            self._freed(r[k], j)
-        if w == self.capacity and free[r].sum(-1).eq(0).any():
+            self._count_free(r[k], j)
+        if w == self.capacity and self._free[r].sum(-1).eq(0).any():
             self._grow()
-            free = self._free_blocks()
+            self._free_blocks()
         slot = self._first_free(r)
         self.s[rows, a, slot] = x
         self.mu[rows, a, slot] = mu
-        free[r, slot // self.free_block] -= (~torch.isinf(mu)).long()   # an infinite mu leaves its slot free
+        self._count_free(r, slot, -(~torch.isinf(mu)).long())   # an infinite mu leaves its slot free
         self.index.inserted(r, slot, x, mu)
         self.width = max(w, int(slot.max()) + 1)
 
@@ -156,11 +156,10 @@ class LipschitzQ:
             self._free = free.view(rows, -1, B).sum(-1)
         return self._free
 
-    def _freed(self, r: torch.Tensor, slot: torch.Tensor) -> None:
-        """Slots ``slot`` of rows ``r`` were emptied: count them free."""
-        blocks = self._free.shape[1]
-        at = r * blocks + torch.div(slot, self.free_block, rounding_mode="floor")
-        self._free.view(-1).index_add_(0, at, torch.ones_like(at))
+    def _count_free(self, r: torch.Tensor, slot: torch.Tensor, change: Optional[torch.Tensor] = None) -> None:
+        """Add ``change`` (default 1: slots emptied) to the free count of slot ``slot``'s block of row ``r``."""
+        at = r * self._free.shape[1] + torch.div(slot, self.free_block, rounding_mode="floor")
+        self._free.view(-1).index_add_(0, at, torch.ones_like(at) if change is None else change)
 
     def _first_free(self, r: torch.Tensor) -> torch.Tensor:
         """The first free slot of each row ``r`` (each has one): the first block with a free slot,
